@@ -1,0 +1,49 @@
+"""The ``ptm-bench`` command line: one sub-command per harness task.
+
+Each sub-command lives in its own module, which exposes ``register(subparsers)``
+adding its parser and setting ``handler`` to a function ``(args) -> int``.
+
+    $ ptm-bench demo
+    $ ptm-bench speed --out results
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# Modules that register sub-commands, in the order ``--help`` lists them.
+COMMAND_MODULES = (
+    "ptm_bench.demo",
+    "ptm_bench.speed",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ptm-bench",
+        description="Probabilistic topological maps: simulation, inference, evaluation.",
+    )
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(subparsers)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.handler(args) or 0)
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        message = error.args[0] if isinstance(error, KeyError) and error.args else error
+        print(f"ptm-bench {args.command}: error: {message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
