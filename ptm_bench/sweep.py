@@ -1,0 +1,225 @@
+"""The sweep engine: run many independent cells, one tidy table row each, resumably (SPEC §6).
+
+A *cell* is a dict with a unique ``"cell_id"`` and the plain values (strings,
+numbers, booleans) that identify it — world, aliasing, noise, seed, model
+variant — plus anything else its cell function needs. ``cell_fn(cell)``
+returns a dict of results. The table row of a cell is its plain values, the
+results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
+
+* The table (CSV) is rewritten atomically after every finished cell, rows in
+  the order of the cell list, so an interrupted sweep loses at most the cells
+  that were running, and a rerun skips every cell already in the table
+  (``retry_failed=True`` reruns the ones that ended in an error).
+* A cell that raises is recorded with its error and the sweep goes on.
+* Locally every cell runs in its own forked process (at most ``workers`` at a
+  time), so a worker that dies — killed, out of memory, a crash in C code —
+  is known by cell: the cell is retried up to ``max_attempts`` times, then
+  recorded as failed. Never lost.
+* With ``scheduler`` (a Dask distributed address) cells become Dask tasks;
+  Dask reschedules the tasks of a lost worker and reports ``KilledWorker``
+  after too many losses, which is recorded as the cell's error.
+
+Cell functions are deterministic in their cell's seeds, so the table is the
+same on a process pool and on a cluster, apart from :data:`TIMING_COLUMNS`.
+
+    >>> table = run_sweep(cells, run_cell, Path("results/grid/cells.csv"), workers=2)
+    >>> table.groupby("models")["gt_mass"].mean()
+    >>> run_sweep(cells, run_cell, path, scheduler="tcp://10.0.0.5:8786")  # scale out
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import multiprocessing.connection
+import os
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import pandas as pd
+from tqdm import tqdm
+
+from ptm.dataset import atomic_write
+
+__all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep"]
+
+#: Columns that measure the machine, not the result: they differ between two runs of one config.
+TIMING_COLUMNS = ("wall_s", "inference_wall_s", "attempts")
+
+_PLAIN_TYPES = (str, int, float, bool, type(None))
+
+CellFn = Callable[[dict], dict]
+
+
+def read_table(path) -> pd.DataFrame:
+    """The table of a sweep, or an empty frame if it has not started."""
+    path = Path(path)
+    if not path.is_file():
+        return pd.DataFrame()
+    return pd.read_csv(path, keep_default_na=True)
+
+
+def comparable(table: pd.DataFrame) -> pd.DataFrame:
+    """The table without its timing columns, for comparing two runs of one config."""
+    return table.drop(columns=[column for column in TIMING_COLUMNS if column in table.columns]).reset_index(drop=True)
+
+
+def run_sweep(
+    cells: Sequence[dict],
+    cell_fn: CellFn,
+    table_path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    max_attempts: int = 2,
+    retry_failed: bool = False,
+    progress: bool = True,
+) -> pd.DataFrame:
+    """Run every cell not yet in the table at ``table_path``; return the full table.
+
+    ``workers``: local processes at a time (default: the number of CPUs);
+    ``max_attempts``: local runs of a cell whose process died before it is recorded as failed;
+    ``scheduler``: a Dask distributed scheduler address, used instead of local processes.
+    """
+    table_path = Path(table_path)
+    cell_ids = [_cell_id(cell) for cell in cells]
+    if len(set(cell_ids)) != len(cell_ids):
+        duplicate = next(cell_id for cell_id in cell_ids if cell_ids.count(cell_id) > 1)
+        raise ValueError(f"cell_id {duplicate!r} appears twice in the sweep")
+    if max_attempts < 1:
+        raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
+    table_path.parent.mkdir(parents=True, exist_ok=True)
+
+    previous = read_table(table_path)
+    rows: dict[str, dict] = {}
+    if len(previous):
+        if "cell_id" not in previous.columns:
+            raise ValueError(f"{table_path} has no cell_id column: not a sweep table")
+        for row in previous.to_dict(orient="records"):
+            if retry_failed and row.get("status") != "ok":
+                continue
+            rows[str(row["cell_id"])] = row
+    pending = [cell for cell, cell_id in zip(cells, cell_ids) if cell_id not in rows]
+
+    if scheduler is None:
+        outcomes = _local_outcomes(pending, cell_fn, workers or os.cpu_count() or 1, max_attempts)
+    else:
+        outcomes = _dask_outcomes(pending, cell_fn, scheduler)
+    order = {cell_id: index for index, cell_id in enumerate(cell_ids)}
+    with tqdm(total=len(cells), initial=len(cells) - len(pending), unit="cell", disable=not progress) as bar:
+        for cell, outcome in outcomes:
+            rows[_cell_id(cell)] = _row(cell, outcome)
+            _write_table(table_path, rows, order)
+            bar.update(1)
+    if not pending:
+        _write_table(table_path, rows, order)
+    return read_table(table_path)
+
+
+def _cell_id(cell: dict) -> str:
+    if "cell_id" not in cell:
+        raise ValueError(f"a sweep cell needs a 'cell_id', got keys {sorted(cell)}")
+    return str(cell["cell_id"])
+
+
+def _row(cell: dict, outcome: dict) -> dict:
+    row = {key: value for key, value in cell.items() if isinstance(value, _PLAIN_TYPES)}
+    row.update(outcome)
+    return row
+
+
+def _write_table(path: Path, rows: dict[str, dict], order: dict[str, int]) -> None:
+    # Cells of this sweep in their list order; rows of cells no longer listed are kept, after them.
+    ordered = sorted(rows.items(), key=lambda item: (order.get(item[0], len(order)), item[0]))
+    table = pd.DataFrame([row for _, row in ordered])
+    atomic_write(path, lambda handle: handle.write(table.to_csv(index=False).encode()))
+
+
+def _succeeded(result: dict, attempts: int) -> dict:
+    if not isinstance(result, dict):
+        raise TypeError(f"a cell function must return a dict, got {type(result).__name__}")
+    return {**result, "status": "ok", "error": "", "attempts": attempts}
+
+
+def _failed(message: str, attempts: int) -> dict:
+    return {"status": "error", "error": message, "attempts": attempts}
+
+
+def _guarded(cell_fn: CellFn, cell: dict) -> dict:
+    """Run one cell; an exception becomes the cell's error instead of stopping the sweep."""
+    try:
+        return _succeeded(cell_fn(cell), attempts=1)
+    except Exception as error:  # noqa: BLE001 - any failure of one cell is recorded, not raised
+        last = traceback.extract_tb(error.__traceback__)[-1]
+        where = f"{Path(last.filename).name}:{last.lineno}"
+        return _failed(f"{type(error).__name__}: {error} ({where})", attempts=1)
+
+
+# -- local: one forked process per cell ---------------------------------------------------------
+
+
+def _child(cell_fn: CellFn, cell: dict, connection) -> None:
+    connection.send(_guarded(cell_fn, cell))
+    connection.close()
+
+
+def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator[tuple[dict, dict]]:
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    context = multiprocessing.get_context("fork")
+    queue = deque((cell, 1) for cell in cells)
+    running: dict = {}
+    try:
+        while queue or running:
+            while queue and len(running) < workers:
+                cell, attempt = queue.popleft()
+                receiver, sender = context.Pipe(duplex=False)
+                process = context.Process(target=_child, args=(cell_fn, cell, sender), name=f"cell-{_cell_id(cell)}")
+                process.start()
+                sender.close()
+                running[receiver] = (process, cell, attempt)
+            for receiver in multiprocessing.connection.wait(list(running)):
+                process, cell, attempt = running.pop(receiver)
+                try:
+                    outcome = receiver.recv()
+                except EOFError:
+                    outcome = None
+                receiver.close()
+                process.join()
+                if outcome is not None:
+                    yield cell, {**outcome, "attempts": attempt}
+                elif attempt < max_attempts:
+                    queue.append((cell, attempt + 1))
+                else:
+                    yield cell, _failed(f"worker died (exit code {process.exitcode}) on every one of {attempt} attempts", attempt)
+    finally:
+        for process, _, _ in running.values():
+            process.terminate()
+            process.join()
+
+
+# -- Dask distributed -------------------------------------------------------------------------
+
+
+def _dask_outcomes(cells, cell_fn, scheduler: str) -> Iterator[tuple[dict, dict]]:
+    # Exceptions inside a cell are caught by _guarded; a lost worker is retried by the scheduler
+    # itself (its ``distributed.scheduler.allowed-failures`` setting) before it reports KilledWorker.
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ValueError("--scheduler needs Dask distributed: pip install 'ptm[dask]'") from None
+    if not cells:
+        return
+    with Client(scheduler) as client:
+        futures = {
+            client.submit(_guarded, cell_fn, cell, key=f"ptm-cell-{_cell_id(cell)}", pure=False): cell
+            for cell in cells
+        }
+        for future in as_completed(futures):
+            cell = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as error:  # noqa: BLE001 - a lost worker (KilledWorker) or a scheduler failure
+                outcome = _failed(f"{type(error).__name__}: {error}", attempts=1)
+            yield cell, outcome

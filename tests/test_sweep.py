@@ -1,0 +1,138 @@
+"""The sweep engine: resume, errors, killed workers, and local vs Dask tables (ptm_bench.sweep).
+
+Cells here score a tiny synthetic appearance-only dataset built with numpy, so
+the engine is exercised end to end without the simulator.
+"""
+
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ptm_bench import scoring, sweep
+
+CALL_LOG_ENV = "PTM_TEST_SWEEP_CALL_LOG"
+
+
+def synthetic_cell(cell: dict) -> dict:
+    """Cluster noisy 2-D signatures of 4 places by a distance threshold and score the answer."""
+    rng = np.random.default_rng(np.random.SeedSequence([cell["seed"], int(cell["noise"] * 1000)]))
+    truth = np.array([0, 1, 2, 3, 0, 1, 2, 3])
+    centres = rng.normal(size=(4, 2)) * 3.0
+    signatures = centres[truth] + rng.normal(scale=cell["noise"], size=(len(truth), 2))
+    labels = []
+    for index, signature in enumerate(signatures):
+        distances = np.linalg.norm(signatures[:index] - signature, axis=1)
+        labels.append(labels[int(np.argmin(distances))] if index and distances.min() < 1.0 else index)
+    log = os.environ.get(CALL_LOG_ENV)
+    if log:
+        with open(log, "a") as handle:
+            handle.write(cell["cell_id"] + "\n")
+    return {**scoring.score(scoring.point_mass(labels), truth), "wall_s": float(rng.random())}
+
+
+def raising_cell(cell: dict) -> dict:
+    if cell["seed"] == 1:
+        raise ValueError("signatures: the sky is falling")
+    return synthetic_cell(cell)
+
+
+def dying_cell(cell: dict) -> dict:
+    marker = Path(cell["marker_dir"]) / f"{cell['cell_id']}.started"
+    if cell["seed"] == 0 or (cell["seed"] == 1 and not marker.exists()):
+        marker.touch()
+        os.kill(os.getpid(), signal.SIGKILL)  # seed 0 always dies; seed 1 dies on its first attempt only
+    return synthetic_cell(cell)
+
+
+def make_cells(seeds=range(4), noises=(0.1, 0.8), **extra):
+    return [
+        {"cell_id": f"noise={noise}|seed={seed}", "experiment": "test", "noise": noise, "seed": seed, **extra}
+        for noise in noises
+        for seed in seeds
+    ]
+
+
+def test_a_sweep_writes_one_row_per_cell_in_cell_order(tmp_path):
+    cells = make_cells()
+    table = sweep.run_sweep(cells, synthetic_cell, tmp_path / "cells.csv", workers=2, progress=False)
+    assert list(table["cell_id"]) == [cell["cell_id"] for cell in cells]
+    assert (table["status"] == "ok").all()
+    # Low noise clusters perfectly; high noise makes mistakes on some seed.
+    assert table.loc[table["noise"] == 0.1, "ari"].mean() > table.loc[table["noise"] == 0.8, "ari"].mean()
+
+
+def test_a_resumed_sweep_equals_an_uninterrupted_one_and_skips_finished_cells(tmp_path, monkeypatch):
+    cells = make_cells()
+    whole = sweep.run_sweep(cells, synthetic_cell, tmp_path / "whole.csv", workers=2, progress=False)
+
+    interrupted_path = tmp_path / "interrupted.csv"
+    real_write, writes = sweep._write_table, []
+
+    def write_then_interrupt(*args):
+        real_write(*args)
+        writes.append(1)
+        if len(writes) == 3:
+            raise KeyboardInterrupt  # as if the user pressed Ctrl-C after three cells
+
+    monkeypatch.setattr(sweep, "_write_table", write_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_sweep(cells, synthetic_cell, interrupted_path, workers=2, progress=False)
+    monkeypatch.setattr(sweep, "_write_table", real_write)
+    finished = set(sweep.read_table(interrupted_path)["cell_id"])
+    assert len(finished) == 3
+
+    log = tmp_path / "calls.log"
+    monkeypatch.setenv(CALL_LOG_ENV, str(log))
+    resumed = sweep.run_sweep(cells, synthetic_cell, interrupted_path, workers=2, progress=False)
+    rerun = set(log.read_text().split())
+    assert rerun == {cell["cell_id"] for cell in cells} - finished
+    pd.testing.assert_frame_equal(sweep.comparable(resumed), sweep.comparable(whole))
+
+
+def test_a_cell_that_raises_is_recorded_and_the_sweep_goes_on(tmp_path):
+    table = sweep.run_sweep(make_cells(seeds=range(3)), raising_cell, tmp_path / "cells.csv", workers=2, progress=False)
+    failed = table[table["status"] == "error"]
+    assert sorted(failed["seed"]) == [1, 1]
+    assert failed["error"].str.contains("ValueError: signatures: the sky is falling").all()
+    assert (table.loc[table["seed"] != 1, "status"] == "ok").all()
+    assert table.loc[table["seed"] != 1, "gt_mass"].notna().all()
+
+
+def test_retry_failed_reruns_only_the_failed_cells(tmp_path, monkeypatch):
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(make_cells(seeds=range(3)), raising_cell, path, workers=2, progress=False)
+    log = tmp_path / "calls.log"
+    monkeypatch.setenv(CALL_LOG_ENV, str(log))
+    table = sweep.run_sweep(make_cells(seeds=range(3)), synthetic_cell, path, workers=2, retry_failed=True, progress=False)
+    assert sorted(log.read_text().split()) == ["noise=0.1|seed=1", "noise=0.8|seed=1"]
+    assert (table["status"] == "ok").all()
+
+
+def test_a_killed_worker_is_retried_then_marked_failed_never_lost(tmp_path):
+    cells = make_cells(seeds=range(3), noises=(0.1,), marker_dir=str(tmp_path))
+    table = sweep.run_sweep(cells, dying_cell, tmp_path / "cells.csv", workers=2, max_attempts=2, progress=False)
+    by_seed = table.set_index("seed")
+    assert by_seed.loc[0, "status"] == "error" and "worker died" in by_seed.loc[0, "error"]
+    assert by_seed.loc[0, "attempts"] == 2
+    assert by_seed.loc[1, "status"] == "ok" and by_seed.loc[1, "attempts"] == 2
+    assert by_seed.loc[2, "status"] == "ok" and by_seed.loc[2, "attempts"] == 1
+
+
+def test_duplicate_cell_ids_are_refused(tmp_path):
+    cells = make_cells(seeds=[0]) * 2
+    with pytest.raises(ValueError, match="appears twice"):
+        sweep.run_sweep(cells, synthetic_cell, tmp_path / "cells.csv", progress=False)
+
+
+def test_local_and_dask_local_cluster_give_identical_tables(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    cells = make_cells()
+    local = sweep.run_sweep(cells, synthetic_cell, tmp_path / "local.csv", workers=2, progress=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        remote = sweep.run_sweep(cells, synthetic_cell, tmp_path / "dask.csv", scheduler=cluster.scheduler_address, progress=False)
+    assert (remote["status"] == "ok").all()
+    pd.testing.assert_frame_equal(sweep.comparable(remote), sweep.comparable(local))
