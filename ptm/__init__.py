@@ -11,8 +11,19 @@ and Dellaert, IEEE T-RO 2006; see SPEC.md for the corrected equations).
     >>> ptm.mcmc(post, 20_000, seed=0).top(3)
 """
 
-from . import features
+from . import features, moves
+from .appearance import AppearanceModel, inverse_gamma_from_mean_variance
 from .dataset import Dataset
+from .exact import exact_posterior
+from .partitions import Partition, bell, canonical, stirling2
+from .posterior import Posterior
+from .prior import PoissonPrior
+from .result import PTM, total_variation
+from .sampler import mcmc
 
-__all__ = ["Dataset", "features"]
+__all__ = [
+    "AppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
+    "bell", "canonical", "exact_posterior", "features", "inverse_gamma_from_mean_variance",
+    "mcmc", "moves", "stirling2", "total_variation",
+]
 __version__ = "0.1.0"

@@ -1,0 +1,195 @@
+"""Appearance likelihood: conjugate Normal-Inverse-Gamma evidence per set (paper eq. 15-19, SPEC §3.2).
+
+Each signature component k of a detection i in set S_j is modelled as
+
+    a_ik ~ N(y_jk, s2_jk),   y_jk ~ N(mu_k, s2_jk / kappa_k),   s2_jk ~ InvGamma(alpha_k, beta_k)
+
+and integrating y and s2 out gives, for a set of n members,
+
+    kappa_n = kappa + n,  alpha_n = alpha + n/2,
+    beta_n  = beta + 1/2 [ sum (a - mean)^2 + kappa n (mean - mu)^2 / kappa_n ]
+            = beta + 1/2 [ sum (a - mu)^2 - (sum (a - mu))^2 / kappa_n ]
+    log p(S, k) = lgamma(alpha_n) - lgamma(alpha) + alpha log beta - alpha_n log beta_n
+                  + 1/2 log(kappa / kappa_n) - (n/2) log(2 pi).
+
+log P(A | T) sums this over sets and components. The paper's printed eq. (19)
+(exponent alpha + n/2 + 2, per-set constants dropped) is wrong — see the SPEC
+erratum — and is offered only as the ablation ``evidence="paper_eq19"``.
+
+    >>> model = AppearanceModel(mu=0.1, kappa=1.0, alpha=3.0, beta=0.01)
+    >>> term = model.bind(Dataset(signatures=signatures))
+    >>> term.block_log_likelihood((0, 3, 4))
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.special import gammaln
+
+from ._validation import finite_array, positive, positive_array
+from .partitions import Partition
+
+__all__ = ["AppearanceModel", "inverse_gamma_from_mean_variance"]
+
+EVIDENCE_FORMS = ("corrected", "paper_eq19")
+
+
+def inverse_gamma_from_mean_variance(mean: float, variance: float) -> tuple[float, float]:
+    """(alpha, beta) of the inverse gamma with the given mean and variance of s2.
+
+    mean = beta / (alpha - 1) and variance = mean^2 / (alpha - 2), so
+    alpha = 2 + mean^2 / variance and beta = mean (alpha - 1). The paper uses
+    mean 500 and variance 50.
+    """
+    mean = positive("mean", mean)
+    variance = positive("variance", variance)
+    alpha = 2.0 + mean * mean / variance
+    return alpha, mean * (alpha - 1.0)
+
+
+class AppearanceModel:
+    """Hyperparameters of the appearance model; ``bind(dataset)`` gives the likelihood term.
+
+    Parameters
+    ----------
+    mu, kappa, alpha, beta : float or (K,) array
+        Prior mean of the true appearance, its precision scale, and the
+        inverse-gamma shape and scale of the per-set noise variance.
+    evidence : {"corrected", "paper_eq19"}
+        The exact NIG evidence (default) or the paper's printed eq. (19), an ablation only.
+    """
+
+    def __init__(self, mu, kappa, alpha, beta, evidence: str = "corrected"):
+        self.mu = finite_array("mu", mu)
+        if self.mu.ndim > 1:
+            raise ValueError(f"mu must be a scalar or a 1-D array, got shape {self.mu.shape}")
+        self.kappa = positive_array("kappa", kappa)
+        self.alpha = positive_array("alpha", alpha)
+        self.beta = positive_array("beta", beta)
+        if evidence not in EVIDENCE_FORMS:
+            raise ValueError(f"evidence must be one of {EVIDENCE_FORMS}, got {evidence!r}")
+        self.evidence = evidence
+        lengths = {name: np.size(value) for name, value in self._hyper().items() if np.ndim(value) == 1}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"hyperparameter arrays have different lengths: {lengths}")
+
+    def _hyper(self) -> dict:
+        return {"mu": self.mu, "kappa": self.kappa, "alpha": self.alpha, "beta": self.beta}
+
+    def bind(self, dataset) -> "AppearanceTerm":
+        if dataset.signatures is None:
+            raise ValueError("the appearance model needs a dataset with signatures")
+        width = dataset.signatures.shape[1]
+        for name, value in self._hyper().items():
+            if np.ndim(value) == 1 and value.shape[0] != width:
+                raise ValueError(f"{name} has length {value.shape[0]} but the signatures have K={width}")
+        return AppearanceTerm(self, dataset.signatures)
+
+    @classmethod
+    def fit(cls, datasets, evidence: str = "corrected") -> "AppearanceModel":
+        """Empirical Bayes: per-component (mu, kappa, alpha, beta) maximising the evidence
+        of the ground-truth partitions of labelled calibration datasets.
+
+        Never fit on the data you then score: use separate calibration runs.
+        """
+        datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
+        if not datasets:
+            raise ValueError("fit needs at least one labelled dataset")
+        groups = []
+        for index, dataset in enumerate(datasets):
+            if dataset.signatures is None or dataset.labels is None:
+                raise ValueError(f"calibration dataset {index} needs signatures and labels")
+            for block in Partition.from_labels(dataset.labels).blocks:
+                groups.append(dataset.signatures[list(block)])
+        widths = {group.shape[1] for group in groups}
+        if len(widths) != 1:
+            raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
+        width = widths.pop()
+        fitted = np.array([_fit_component([group[:, k] for group in groups], evidence) for k in range(width)])
+        mu, kappa, alpha, beta = fitted.T
+        return cls(mu, kappa, alpha, beta, evidence=evidence)
+
+    def __repr__(self) -> str:
+        def show(value):
+            return f"{float(value):.4g}" if np.ndim(value) == 0 else np.array2string(value, precision=4)
+
+        return (f"AppearanceModel(mu={show(self.mu)}, kappa={show(self.kappa)}, "
+                f"alpha={show(self.alpha)}, beta={show(self.beta)}, evidence={self.evidence!r})")
+
+
+class AppearanceTerm:
+    """The appearance likelihood bound to one dataset's signatures; decomposes over sets."""
+
+    name = "appearance"
+
+    def __init__(self, model: AppearanceModel, signatures: np.ndarray):
+        self.model = model
+        width = signatures.shape[1]
+        self._centred = signatures - model.mu
+        self._centred_squared = self._centred ** 2
+        self._kappa = np.broadcast_to(model.kappa, (width,)).astype(float)
+        self._alpha = np.broadcast_to(model.alpha, (width,)).astype(float)
+        self._beta = np.broadcast_to(model.beta, (width,)).astype(float)
+        self._paper_form = model.evidence == "paper_eq19"
+        self._constant_by_size: dict[int, float] = {}
+
+    def _constant(self, n: int) -> float:
+        """The part of sum_k log p(S, k) that depends on the set size only."""
+        value = self._constant_by_size.get(n)
+        if value is None:
+            kappa, alpha, beta = self._kappa, self._alpha, self._beta
+            if self._paper_form:
+                value = float(np.sum(gammaln(alpha + n / 2.0 + 2.0) - 0.5 * np.log(kappa + n)))
+            else:
+                value = float(np.sum(gammaln(alpha + n / 2.0) - gammaln(alpha) + alpha * np.log(beta)
+                                     + 0.5 * np.log(kappa / (kappa + n)))
+                              - 0.5 * n * kappa.size * math.log(2.0 * math.pi))
+            self._constant_by_size[n] = value
+        return value
+
+    def block_log_likelihood(self, block) -> float:
+        """sum_k log p(S, k) for the set of detections ``block``."""
+        members = list(block)
+        n = len(members)
+        if n == 1:
+            total = self._centred[members[0]]
+            squares = self._centred_squared[members[0]]
+        else:
+            total = self._centred[members].sum(axis=0)
+            squares = self._centred_squared[members].sum(axis=0)
+        beta_n = self._beta + 0.5 * (squares - total * total / (self._kappa + n))
+        exponent = self._alpha + (n / 2.0 + 2.0 if self._paper_form else n / 2.0)
+        return self._constant(n) - float(np.dot(exponent, np.log(beta_n)))
+
+    def log_likelihood(self, partition: Partition) -> float:
+        return sum(self.block_log_likelihood(block) for block in partition.blocks)
+
+
+def _component_evidence(params: np.ndarray, groups: list[np.ndarray], evidence: str) -> float:
+    """Total log evidence of one component over the calibration groups (for the fit)."""
+    mu, log_kappa, log_alpha, log_beta = params
+    kappa, alpha, beta = math.exp(log_kappa), math.exp(log_alpha), math.exp(log_beta)
+    model = AppearanceModel(mu, kappa, alpha, beta, evidence=evidence)
+    total = 0.0
+    for group in groups:
+        term = AppearanceTerm(model, group[:, None])
+        total += term.block_log_likelihood(range(group.shape[0]))
+    return total
+
+
+def _fit_component(groups: list[np.ndarray], evidence: str) -> tuple[float, float, float, float]:
+    values = np.concatenate(groups)
+    spread = float(np.var(values)) if values.size > 1 else 1.0
+    within = [np.var(group) for group in groups if group.size > 1]
+    noise = float(np.mean(within)) if within else spread
+    noise = max(noise, 1e-12 + 1e-6 * spread, 1e-12)
+    start = np.array([float(values.mean()), 0.0, math.log(3.0), math.log(2.0 * noise)])
+    bounds = [(None, None), (math.log(1e-4), math.log(1e4)), (math.log(0.5), math.log(1e4)),
+              (start[3] - 25.0, start[3] + 25.0)]
+    result = minimize(lambda p: -_component_evidence(p, groups, evidence), start,
+                      method="L-BFGS-B", bounds=bounds)
+    mu, log_kappa, log_alpha, log_beta = result.x
+    return float(mu), math.exp(log_kappa), math.exp(log_alpha), math.exp(log_beta)

@@ -1,0 +1,283 @@
+"""Proposal moves over partitions (paper Algorithms 1-2, SPEC §3.4) and the chain state.
+
+A move is any object with ``propose(rng, state, posterior) -> Proposal | None``
+(``None`` means "propose the current partition again"). A proposal names the
+sets it removes and the sets it adds, plus log q(T'->T) - log q(T->T'), so the
+sampler re-scores only what changed.
+
+* :class:`SplitMerge` — the paper's move. Merge (prob. 1/2): a pair of sets
+  uniformly among C(M, 2); the reverse split has probability
+  1/2 * 1/N_S(T') * 1/S(n, 2). Split (prob. 1/2): a non-singleton set
+  uniformly among N_S(T), then one of its S(n, 2) = 2^(n-1) - 1 two-way splits
+  uniformly; the reverse merge has probability 1/2 * 1/C(M+1, 2).
+* :class:`GibbsReassign` — one detection moved to a set (or a new one) drawn
+  from its conditional under the cheap terms (prior + decomposable models).
+* :class:`SequentialSplitMerge` — the sequentially-allocated merge-split of
+  Dahl (2003): two anchors; if they share a set, split it by allocating the
+  other members one by one in proportion to the cheap terms; else merge.
+
+    >>> state = initial_state(posterior, [0] * posterior.n)
+    >>> proposal = SplitMerge().propose(np.random.default_rng(0), state, posterior)
+    >>> proposal.log_q_ratio
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from dataclasses import dataclass
+
+import numpy as np
+
+from .partitions import Block, Partition, log_stirling2_two
+
+__all__ = [
+    "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "SequentialSplitMerge",
+    "merge_log_q_ratio", "split_log_q_ratio", "initial_state", "apply_proposal",
+]
+
+
+@dataclass(frozen=True)
+class ChainState:
+    """Where a chain is: the partition, each set's cheap score, and the two parts of log P(T|Z)."""
+
+    partition: Partition
+    block_scores: tuple[float, ...]
+    log_cheap: float
+    log_global: float
+
+    @property
+    def blocks(self) -> tuple[Block, ...]:
+        return self.partition.blocks
+
+    @property
+    def log_prob(self) -> float:
+        return self.log_cheap + self.log_global
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """Replace the sets at indices ``removed`` of the current state by the sets ``added``."""
+
+    removed: tuple[int, ...]
+    added: tuple[Block, ...]
+    log_q_ratio: float
+
+
+def initial_state(posterior, labels) -> ChainState:
+    partition = posterior.partition(labels)
+    scores = tuple(posterior.block_score(block) for block in partition.blocks)
+    log_cheap = posterior.log_prior_by_size[partition.m] + sum(scores)
+    return ChainState(partition, scores, log_cheap, posterior.global_log_prob(partition))
+
+
+def proposed_log_cheap(posterior, state: ChainState, proposal: Proposal) -> tuple[float, tuple[float, ...]]:
+    """Cheap log-probability of the proposed partition, from the change alone; also the new sets' scores."""
+    added_scores = tuple(posterior.block_score(block) for block in proposal.added)
+    m_new = len(state.blocks) - len(proposal.removed) + len(proposal.added)
+    delta = sum(added_scores) - sum(state.block_scores[i] for i in proposal.removed)
+    log_cheap = state.log_cheap + delta + posterior.log_prior_by_size[m_new] - posterior.log_prior_by_size[len(state.blocks)]
+    return log_cheap, added_scores
+
+
+def proposed_partition(state: ChainState, proposal: Proposal) -> Partition:
+    blocks = [block for index, block in enumerate(state.blocks) if index not in proposal.removed]
+    blocks.extend(proposal.added)
+    blocks.sort()  # sets are disjoint, so tuples order by their smallest member
+    return Partition(tuple(blocks))
+
+
+def apply_proposal(state: ChainState, proposal: Proposal, partition: Partition,
+                   added_scores, log_cheap: float, log_global: float) -> ChainState:
+    """The accepted state, with each set's score carried over or taken from the proposal."""
+    known = {block: score for index, (block, score) in enumerate(zip(state.blocks, state.block_scores))
+             if index not in proposal.removed}
+    known.update(zip(proposal.added, added_scores))
+    scores = tuple(known[block] for block in partition.blocks)
+    return ChainState(partition, scores, log_cheap, log_global)
+
+
+# -- the Hastings corrections of the paper's move -------------------------------------------------
+
+def merge_log_q_ratio(num_sets: int, num_nonsingleton_after: int, merged_size: int) -> float:
+    """log q(T'->T) - log q(T->T') for merging two of ``num_sets`` sets into one of ``merged_size``.
+
+    q(T->T') = 1/2 * 1/C(M, 2);  q(T'->T) = 1/2 * 1/N_S(T') * 1/S(n, 2).
+    """
+    return (math.log(num_sets * (num_sets - 1) / 2.0) - math.log(num_nonsingleton_after)
+            - log_stirling2_two(merged_size))
+
+
+def split_log_q_ratio(num_sets: int, num_nonsingleton: int, split_size: int) -> float:
+    """log q(T'->T) - log q(T->T') for splitting a set of ``split_size`` of a partition with ``num_sets`` sets.
+
+    q(T->T') = 1/2 * 1/N_S(T) * 1/S(n, 2);  q(T'->T) = 1/2 * 1/C(M+1, 2).
+    """
+    return (math.log(num_nonsingleton) + log_stirling2_two(split_size)
+            - math.log((num_sets + 1) * num_sets / 2.0))
+
+
+def _uniform_index(rng: np.random.Generator, count: int) -> int:
+    """A uniform integer in [0, count) — cheaper than ``rng.integers`` for one draw."""
+    return min(int(rng.random() * count), count - 1)
+
+
+def _with_member(block: Block, member: int) -> Block:
+    position = bisect_left(block, member)
+    return block[:position] + (member,) + block[position:]
+
+
+class SplitMerge:
+    """The paper's split/merge proposal (Algorithm 2) with its exact Hastings ratio."""
+
+    name = "split_merge"
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        blocks = state.blocks
+        num_sets = len(blocks)
+        if rng.random() < 0.5:
+            if num_sets == 1:
+                return None
+            first = _uniform_index(rng, num_sets)
+            second = _uniform_index(rng, num_sets - 1)
+            if second >= first:
+                second += 1
+            merged = tuple(sorted(blocks[first] + blocks[second]))
+            nonsingleton_after = sum(1 for block in blocks if len(block) > 1) + 1
+            nonsingleton_after -= (len(blocks[first]) > 1) + (len(blocks[second]) > 1)
+            return Proposal((first, second), (merged,),
+                            merge_log_q_ratio(num_sets, nonsingleton_after, len(merged)))
+        splittable = [index for index, block in enumerate(blocks) if len(block) > 1]
+        if not splittable:
+            return None
+        chosen = splittable[_uniform_index(rng, len(splittable))]
+        members = blocks[chosen]
+        while True:  # fair coins for all but the first member; redraw if part B is empty
+            to_b = rng.random(len(members) - 1) < 0.5
+            if to_b.any():
+                break
+        part_a = (members[0],) + tuple(member for member, flag in zip(members[1:], to_b) if not flag)
+        part_b = tuple(member for member, flag in zip(members[1:], to_b) if flag)
+        return Proposal((chosen,), (part_a, part_b),
+                        split_log_q_ratio(num_sets, len(splittable), len(members)))
+
+
+class GibbsReassign:
+    """Move one detection to a set drawn from its conditional under the cheap terms.
+
+    The candidates are every other set and a new singleton. Proposing from the
+    cheap conditional gives log q ratio = cheap(T) - cheap(T'), so without
+    global terms every such move is accepted (a Gibbs step), and with them the
+    acceptance ratio is the ratio of the global terms alone.
+    """
+
+    name = "gibbs"
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        n = posterior.n
+        if n == 1:
+            return None
+        detection = _uniform_index(rng, n)
+        blocks = state.blocks
+        home = state.partition.labels[detection]
+        home_block = blocks[home]
+        rest = tuple(member for member in home_block if member != detection)
+        sets_without = len(blocks) - (0 if rest else 1)
+        log_prior = posterior.log_prior_by_size
+        score = posterior.block_score
+
+        targets: list[int] = []  # -1 stands for "a new singleton"
+        weights: list[float] = []
+        for index, block in enumerate(blocks):
+            if index == home:
+                if rest:
+                    targets.append(index)
+                    weights.append(state.block_scores[home] - score(rest) + log_prior[sets_without])
+                continue
+            targets.append(index)
+            weights.append(score(_with_member(block, detection)) - state.block_scores[index]
+                           + log_prior[sets_without])
+        targets.append(-1)
+        weights.append(score((detection,)) + log_prior[sets_without + 1])
+
+        log_weights = np.asarray(weights)
+        probabilities = np.exp(log_weights - log_weights.max())
+        cumulative = np.cumsum(probabilities)
+        pick = int(np.searchsorted(cumulative, rng.random() * cumulative[-1], side="right"))
+        pick = min(pick, len(targets) - 1)
+        target = targets[pick]
+        current = home if rest else -1
+        if target == current:
+            return None
+        log_q_ratio = weights[targets.index(current)] - weights[pick]
+        if target == -1:
+            return Proposal((home,), (rest, (detection,)), log_q_ratio)
+        joined = _with_member(blocks[target], detection)
+        if rest:
+            return Proposal((home, target), (rest, joined), log_q_ratio)
+        return Proposal((home, target), (joined,), log_q_ratio)
+
+
+class SequentialSplitMerge:
+    """Sequentially-allocated merge-split (Dahl 2003) guided by the cheap terms.
+
+    Two distinct detections are drawn uniformly. In different sets: propose
+    the merge (its reverse, the split, is scored by replaying the allocation).
+    In one set: split it, each other member (in random order) joining the part
+    of the first or the second anchor with probability proportional to the
+    exponentiated change of the cheap set scores.
+    """
+
+    name = "sequential_split_merge"
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        n = posterior.n
+        if n == 1:
+            return None
+        first = _uniform_index(rng, n)
+        second = _uniform_index(rng, n - 1)
+        if second >= first:
+            second += 1
+        labels = state.partition.labels
+        blocks = state.blocks
+        if labels[first] == labels[second]:
+            home = labels[first]
+            others = [member for member in blocks[home] if member not in (first, second)]
+            part_first, part_second, log_q = self._allocate(rng, posterior, first, second, others)
+            return Proposal((home,), (part_first, part_second), -log_q)
+        block_first, block_second = blocks[labels[first]], blocks[labels[second]]
+        others = [member for member in block_first + block_second if member not in (first, second)]
+        _, _, log_q = self._allocate(rng, posterior, first, second, others,
+                                     forced=set(block_first))
+        merged = tuple(sorted(block_first + block_second))
+        return Proposal((labels[first], labels[second]), (merged,), log_q)
+
+    @staticmethod
+    def _allocate(rng, posterior, first, second, others, forced=None):
+        """Allocate ``others`` to the anchors' parts in random order; return the parts and log q.
+
+        With ``forced`` (the members of the first anchor's actual set), replay
+        that allocation and return the probability the procedure gives it.
+        """
+        score = posterior.block_score
+        part_first, part_second = (first,), (second,)
+        log_q = 0.0
+        for position in rng.permutation(len(others)):
+            member = others[position]
+            grown_first = _with_member(part_first, member)
+            grown_second = _with_member(part_second, member)
+            gain_first = score(grown_first) - score(part_first)
+            gain_second = score(grown_second) - score(part_second)
+            top = max(gain_first, gain_second)
+            log_norm = top + math.log(math.exp(gain_first - top) + math.exp(gain_second - top))
+            if forced is not None:
+                joins_first = member in forced
+            else:
+                joins_first = rng.random() < math.exp(gain_first - log_norm)
+            if joins_first:
+                part_first = grown_first
+                log_q += gain_first - log_norm
+            else:
+                part_second = grown_second
+                log_q += gain_second - log_norm
+        return part_first, part_second, log_q

@@ -1,0 +1,141 @@
+"""The result: a probabilistic topological map (paper Section III, SPEC §3.6).
+
+A PTM is a histogram over canonical partitions — exact probabilities from
+enumeration, or visit frequencies from MCMC. It answers: the k most probable
+topologies, the probability of any partition (0 if never visited), the MAP,
+pairwise co-assignment probabilities P(i and j are the same place), the
+expected number of places, the entropy, and a pandas export.
+
+    >>> result = ptm.mcmc(posterior, 10_000, seed=0)
+    >>> result.top(3)                       # [((0, 1, 0, 2), 0.71), ...]
+    >>> result.probability([5, 2, 5, 7]), result.coassignment()[0, 2]
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .partitions import canonical
+
+__all__ = ["PTM", "total_variation"]
+
+_COASSIGNMENT_CHUNK = 20_000
+
+
+class PTM:
+    """A distribution over topologies.
+
+    Parameters
+    ----------
+    partitions : (P, N) int array
+        Distinct canonical label rows.
+    probabilities : (P,) array
+        Their probabilities (normalised here).
+    method : str
+        "exact" or "mcmc".
+    diagnostics : dict
+        Sampler or enumeration diagnostics.
+    traces : dict of (chains, samples) arrays, optional
+        Per-sample scalars of the chains ("log_prob", "num_places").
+    """
+
+    def __init__(self, partitions, probabilities, method: str, diagnostics=None, traces=None):
+        partitions = np.asarray(partitions)
+        probabilities = np.asarray(probabilities, dtype=float)
+        if partitions.ndim != 2 or partitions.shape[0] != probabilities.shape[0] or partitions.shape[0] == 0:
+            raise ValueError("a PTM needs a non-empty (P, N) array of partitions and P probabilities")
+        if not np.all(np.isfinite(probabilities)) or np.any(probabilities < 0) or probabilities.sum() <= 0:
+            raise ValueError("PTM probabilities must be finite, non-negative and not all zero")
+        order = np.lexsort((np.arange(len(probabilities)), -probabilities))
+        self.partitions = partitions[order].astype(np.int16 if partitions.shape[1] < 32_000 else np.int32)
+        self.probabilities = probabilities[order] / probabilities.sum()
+        self.method = method
+        self.diagnostics = dict(diagnostics or {})
+        self.traces = {name: np.asarray(value) for name, value in (traces or {}).items()}
+        self._index: dict | None = None
+
+    @property
+    def n(self) -> int:
+        """Number of detections N."""
+        return self.partitions.shape[1]
+
+    def __len__(self) -> int:
+        return self.partitions.shape[0]
+
+    def top(self, k: int = 5) -> list[tuple[tuple[int, ...], float]]:
+        """The ``k`` most probable topologies as (canonical tuple, probability)."""
+        return [(tuple(int(x) for x in row), float(p))
+                for row, p in zip(self.partitions[:k], self.probabilities[:k])]
+
+    def probability(self, labels) -> float:
+        """Probability of a partition given as any label sequence (0 if never visited)."""
+        key = canonical(labels)
+        if len(key) != self.n:
+            raise ValueError(f"this PTM is over {self.n} detections, got {len(key)} labels")
+        if self._index is None:
+            self._index = {row.tobytes(): i for i, row in enumerate(self.partitions)}
+        position = self._index.get(np.asarray(key, dtype=self.partitions.dtype).tobytes())
+        return 0.0 if position is None else float(self.probabilities[position])
+
+    def rank(self, labels) -> int | None:
+        """1-based rank of a partition by probability (ties share the better rank); None if never visited."""
+        probability = self.probability(labels)
+        if probability == 0.0:
+            return None
+        return int(np.sum(self.probabilities > probability)) + 1
+
+    def map(self) -> tuple[int, ...]:
+        """The most probable topology (canonical tuple)."""
+        return self.top(1)[0][0]
+
+    def num_places(self) -> np.ndarray:
+        """Number of places M of each stored partition."""
+        return self.partitions.max(axis=1).astype(int) + 1
+
+    def expected_num_places(self) -> float:
+        return float(np.dot(self.probabilities, self.num_places()))
+
+    def entropy(self) -> float:
+        """Shannon entropy of the distribution over topologies, in nats."""
+        p = self.probabilities[self.probabilities > 0]
+        return float(-np.dot(p, np.log(p)))
+
+    def coassignment(self) -> np.ndarray:
+        """N x N matrix of P(detections i and j are at the same place)."""
+        n = self.n
+        matrix = np.zeros((n, n))
+        for start in range(0, len(self), _COASSIGNMENT_CHUNK):
+            rows = self.partitions[start:start + _COASSIGNMENT_CHUNK]
+            weights = self.probabilities[start:start + _COASSIGNMENT_CHUNK]
+            same = rows[:, :, None] == rows[:, None, :]
+            matrix += np.tensordot(weights, same, axes=(0, 0))
+        return matrix
+
+    def to_frame(self, limit: int | None = None):
+        """A pandas DataFrame, one row per topology: topology, probability, num_places."""
+        import pandas as pd
+
+        rows = self.partitions if limit is None else self.partitions[:limit]
+        return pd.DataFrame({
+            "topology": ["".join(f"{int(x)}," for x in row).rstrip(",") for row in rows],
+            "probability": self.probabilities[: len(rows)],
+            "num_places": rows.max(axis=1).astype(int) + 1,
+        })
+
+    def __repr__(self) -> str:
+        best, p = self.top(1)[0]
+        return (f"PTM(method={self.method!r}, n={self.n}, topologies={len(self)}, "
+                f"map={best}, p_map={p:.3f})")
+
+
+def total_variation(first: PTM, second: PTM) -> float:
+    """Total variation distance between two PTMs over the same detections."""
+    if first.n != second.n:
+        raise ValueError(f"PTMs over different numbers of detections ({first.n} vs {second.n})")
+    mass: dict[bytes, float] = {}
+    for sign, result in ((1.0, first), (-1.0, second)):
+        rows = result.partitions.astype(np.int32)
+        for row, p in zip(rows, result.probabilities):
+            key = row.tobytes()
+            mass[key] = mass.get(key, 0.0) + sign * p
+    return 0.5 * float(sum(abs(v) for v in mass.values()))
