@@ -1,0 +1,107 @@
+"""``ptm-bench speed``: throughput benchmarks, written to results/speed.csv.
+
+Sections (run all by default, or pick with ``--section``):
+
+* ``core`` — Metropolis-Hastings steps per second on appearance-only
+  posteriors at N = 10, 50, 100 (K = 5), for the paper's split/merge move
+  alone and for the default move mix, and the wall time of exact
+  enumeration at N = 10 (Bell(10) = 115 975 partitions).
+* further sections registered in ``SECTIONS`` by the odometry model and the
+  simulator.
+
+Rows: ``section, metric, n, value, unit``. Timings are single-process; compare
+ratios within one run, not absolute times across machines.
+
+    $ ptm-bench speed
+    $ ptm-bench speed --section core --out results
+"""
+
+from __future__ import annotations
+
+import importlib
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+import ptm
+from ptm.dataset import atomic_write
+
+# section name -> "module:function"; each function takes the parsed args and returns row dicts.
+SECTIONS = {
+    "core": "ptm_bench.speed:core_rows",
+}
+
+
+def synthetic_appearance_posterior(n: int, k: int = 5, seed: int = 0) -> ptm.Posterior:
+    """An appearance-only posterior over N detections of about N/3 places (K components)."""
+    rng = np.random.default_rng(seed)
+    places = max(1, n // 3)
+    labels = rng.integers(0, places, size=n)
+    centres = rng.uniform(0.05, 0.5, size=(places, k))
+    signatures = np.abs(centres[labels] + rng.normal(0.0, 0.01, size=(n, k)))
+    dataset = ptm.Dataset(signatures=signatures, labels=labels)
+    model = ptm.AppearanceModel(mu=0.25, kappa=0.1, alpha=3.0, beta=2.0 * 0.01 ** 2)
+    return ptm.Posterior(dataset, ptm.PoissonPrior(rate=float(places)), [model])
+
+
+def core_rows(args) -> list[dict]:
+    rows = []
+    steps = max(1000, int(20_000 * args.scale))
+    for n in (10, 50, 100):
+        for label, moves in (("split_merge", [ptm.moves.SplitMerge()]), ("default_moves", None)):
+            posterior = synthetic_appearance_posterior(n)
+            ptm.mcmc(posterior, 500, seed=0, moves=moves)  # warm the per-set memo
+            started = time.perf_counter()
+            ptm.mcmc(posterior, steps, seed=1, moves=moves)
+            rate = steps / (time.perf_counter() - started)
+            rows.append({"section": "core", "metric": f"mh_steps_per_s_appearance_{label}", "n": n,
+                         "value": rate, "unit": "steps/s"})
+    posterior = synthetic_appearance_posterior(10)
+    started = time.perf_counter()
+    ptm.exact_posterior(posterior)
+    rows.append({"section": "core", "metric": "exact_enumeration_time", "n": 10,
+                 "value": time.perf_counter() - started, "unit": "s"})
+    return rows
+
+
+def _section_function(name: str):
+    module_name, function_name = SECTIONS[name].split(":")
+    return getattr(importlib.import_module(module_name), function_name)
+
+
+def run(args) -> int:
+    import pandas as pd
+
+    names = args.section or list(SECTIONS)
+    unknown = [name for name in names if name not in SECTIONS]
+    if unknown:
+        raise ValueError(f"unknown section(s) {unknown}; known: {sorted(SECTIONS)}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in names:
+        print(f"[speed] running section {name} ...", flush=True)
+        rows.extend(_section_function(name)(args))
+    frame = pd.DataFrame(rows, columns=["section", "metric", "n", "value", "unit"])
+    frame["machine"] = f"{platform.node()} {platform.processor() or platform.machine()}"
+    path = out / "speed.csv"
+    previous = pd.read_csv(path) if path.is_file() else None
+    if previous is not None:  # keep other sections' rows from earlier runs
+        previous = previous[~previous["section"].isin(names)]
+        frame = pd.concat([previous, frame], ignore_index=True)
+    atomic_write(path, lambda handle: handle.write(frame.to_csv(index=False).encode()))
+    with pd.option_context("display.width", 120, "display.max_rows", 200):
+        print(frame.drop(columns="machine").to_string(index=False, float_format=lambda v: f"{v:,.4g}"))
+    print(f"[speed] wrote {path}")
+    return 0
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("speed", help="throughput benchmarks -> results/speed.csv")
+    parser.add_argument("--section", action="append", help=f"section to run (repeatable); default all")
+    parser.add_argument("--out", default="results", help="folder for speed.csv (default: results)")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="multiply the work per measurement (smaller = faster, noisier)")
+    parser.set_defaults(handler=run)
