@@ -38,7 +38,7 @@ def synthetic_dataset(seed: int) -> ptm.Dataset:
 
 def run(args) -> int:
     dataset = synthetic_dataset(args.seed)
-    model = ptm.AppearanceModel(mu=0.1, kappa=0.05, alpha=3.0, beta=2.0 * 0.008 ** 2)
+    model = ptm.AppearanceModel(mu=0.2, kappa=0.005, alpha=3.0, beta=2.0 * 0.008 ** 2)
     posterior = ptm.Posterior(dataset, ptm.PoissonPrior(rate=5.0), [model])
     exact = ptm.exact_posterior(posterior)
     sampled = ptm.mcmc(posterior, n_samples=20_000, burn_in=2_000, seed=args.seed, chains=4)
