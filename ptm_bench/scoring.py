@@ -49,8 +49,7 @@ def point_mass(labels) -> dict[tuple[int, ...], float]:
 
 def distribution_of(result) -> dict[tuple[int, ...], float]:
     """The histogram of a ``ptm.PTM`` as a ``{canonical labels: probability}`` dict."""
-    frame = result.to_frame()
-    return {canonical(labels): float(probability) for labels, probability in zip(frame["labels"], frame["probability"])}
+    return dict(result.top(len(result)))
 
 
 def _validated(distribution: Mapping, n: int | None = None) -> dict[tuple[int, ...], float]:
@@ -166,10 +165,15 @@ def _average_precision(scores: np.ndarray, positives: np.ndarray) -> float:
     return float(np.sum(recall_gain * hits / pairs))
 
 
-def score(distribution: Mapping, truth, threshold: float = 0.5) -> dict:
-    """Every accuracy score of one distribution over partitions against the true labels."""
+def score(distribution: Mapping, truth, threshold: float = 0.5, coassignment=None) -> dict:
+    """Every accuracy score of one distribution over partitions against the true labels.
+
+    ``coassignment`` may pass the distribution's co-assignment matrix when it is
+    already known (``PTM.coassignment()``), instead of recomputing it here.
+    """
     truth = canonical(truth)
     probabilities = _validated(distribution, n=len(truth))
+    # The most probable partition; ties go to the lexicographically smallest labels, for determinism.
     map_labels = max(probabilities.items(), key=lambda item: (item[1], [-label for label in item[0]]))[0]
     row = {
         "gt_mass": probabilities.get(truth, 0.0),
@@ -182,5 +186,7 @@ def score(distribution: Mapping, truth, threshold: float = 0.5) -> dict:
         "map_places": max(map_labels) + 1,
         "n_topologies": len(probabilities),
     }
-    row.update(loop_closure_scores(coassignment_matrix(probabilities), truth, threshold))
+    if coassignment is None:
+        coassignment = coassignment_matrix(probabilities)
+    row.update(loop_closure_scores(coassignment, truth, threshold))
     return row

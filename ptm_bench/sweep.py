@@ -20,7 +20,7 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   after too many losses, which is recorded as the cell's error.
 
 Cell functions are deterministic in their cell's seeds, so the table is the
-same on a process pool and on a cluster, apart from :data:`TIMING_COLUMNS`.
+same on a process pool and on a cluster, apart from the columns :data:`TIMING_COLUMNS` matches.
 
     >>> table = run_sweep(cells, run_cell, Path("results/grid/cells.csv"), workers=2)
     >>> table.groupby("models")["gt_mass"].mean()
@@ -32,6 +32,7 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import re
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -44,8 +45,8 @@ from ptm.dataset import atomic_write
 
 __all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep"]
 
-#: Columns that measure the machine, not the result: they differ between two runs of one config.
-TIMING_COLUMNS = ("wall_s", "inference_wall_s", "attempts")
+#: Column names that measure the machine, not the result: they differ between two runs of one config.
+TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|attempts)$")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 
@@ -62,7 +63,7 @@ def read_table(path) -> pd.DataFrame:
 
 def comparable(table: pd.DataFrame) -> pd.DataFrame:
     """The table without its timing columns, for comparing two runs of one config."""
-    return table.drop(columns=[column for column in TIMING_COLUMNS if column in table.columns]).reset_index(drop=True)
+    return table.drop(columns=[column for column in table.columns if TIMING_COLUMNS.search(column)]).reset_index(drop=True)
 
 
 def run_sweep(

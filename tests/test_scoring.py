@@ -119,3 +119,42 @@ def test_score_rejects_a_distribution_that_does_not_sum_to_one():
 def test_score_rejects_partitions_of_the_wrong_size():
     with pytest.raises(ValueError, match="partition of 3 detections, the ground truth has 2"):
         scoring.score({(0, 1, 0): 1.0}, [0, 1])
+
+
+# -- baselines -------------------------------------------------------------------------------
+
+from ptm import Dataset  # noqa: E402
+from ptm_bench import baselines  # noqa: E402
+
+
+def test_dead_reckoning_composes_increments_on_se2():
+    # Forward 1 m, turn left 90 degrees, forward 1 m: ends at (1, 1) facing +y.
+    poses = baselines.dead_reckoning([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(poses[-1], [1.0, 1.0, np.pi / 2], atol=1e-12)
+
+
+def test_greedy_threshold_joins_the_nearest_place_mean_closer_than_the_threshold():
+    points = np.array([[0.0], [10.0], [0.4], [10.6], [0.9], [5.0]])
+    # 0.4 joins place 0 (mean 0 -> 0.2); 10.6 joins place 1; 0.9 is 0.7 from mean 0.2 -> joins; 5.0 is new.
+    assert baselines.greedy_threshold_labels(points, threshold=0.8) == (0, 1, 0, 1, 0, 2)
+    assert baselines.greedy_threshold_labels(points, threshold=0.0) == (0, 1, 2, 3, 4, 5)
+
+
+def test_fit_threshold_recovers_the_gap_between_within_and_between_place_distances():
+    rng = np.random.default_rng(7)
+    datasets = []
+    for _ in range(3):
+        labels = rng.permutation(np.repeat(np.arange(4), 3))
+        signatures = np.array([[10.0 * label, 0.0] for label in labels]) + rng.normal(scale=0.3, size=(12, 2))
+        datasets.append(Dataset(signatures=signatures, labels=labels))
+    threshold = baselines.fit_threshold(datasets, baselines.BASELINE_FEATURES["appearance_threshold"])
+    # Within-place spreads are ~1 at most, places are 10 apart: any threshold in between is perfect.
+    assert 0.5 < threshold < 9.0
+    for dataset in datasets:
+        labels = baselines.greedy_threshold_labels(dataset.signatures, threshold)
+        assert scoring.adjusted_rand_index(labels, dataset.labels) == 1.0
+
+
+def test_baselines_name_the_missing_field():
+    with pytest.raises(ValueError, match="needs a dataset with odometry"):
+        baselines.BASELINE_FEATURES["greedy_odometry"](Dataset(signatures=np.ones((3, 2))))

@@ -136,3 +136,62 @@ def test_local_and_dask_local_cluster_give_identical_tables(tmp_path):
         remote = sweep.run_sweep(cells, synthetic_cell, tmp_path / "dask.csv", scheduler=cluster.scheduler_address, progress=False)
     assert (remote["status"] == "ok").all()
     pd.testing.assert_frame_equal(sweep.comparable(remote), sweep.comparable(local))
+
+
+# -- experiment configs ----------------------------------------------------------------------
+
+from ptm_bench import experiment  # noqa: E402
+
+MINIMAL_CONFIG = """
+name = "tiny"
+[sweep]
+worlds = ["nested_loops"]
+aliasing = [0.0, 1.0]
+seeds = [0, 1]
+calibration_seeds = [10]
+[odometry]
+max_penalty = 50
+[[variants]]
+name = "odometry"
+models = ["odometry"]
+[[variants]]
+name = "both"
+models = ["appearance", "odometry"]
+odometry = { max_penalty = 150 }
+"""
+
+
+def write_config(tmp_path, text):
+    path = tmp_path / "tiny.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_config_expands_into_named_cells_with_variant_overrides(tmp_path):
+    config = experiment.load_experiment(write_config(tmp_path, 'baselines = ["greedy_odometry"]\n' + MINIMAL_CONFIG))
+    cells = experiment.expand_cells(config, tmp_path)
+    assert len(cells) == 1 * 2 * 1 * 2 * 3
+    assert cells[0]["cell_id"] == "nested_loops|a=0|noise=1|seed=0|odometry"
+    both = next(cell for cell in cells if cell["variant"] == "both")
+    assert both["models"] == "odometry+appearance"
+    assert both["settings"]["odometry"]["max_penalty"] == 150
+    odometry_only = next(cell for cell in cells if cell["variant"] == "odometry")
+    assert odometry_only["settings"]["odometry"]["max_penalty"] == 50
+    assert {cell["method"] for cell in cells if cell["variant"] == "greedy_odometry"} == {"baseline"}
+
+
+@pytest.mark.parametrize("bad, message", [
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\ncolour = 1\n', "unknown key 'colour' in \\[sweep\\]"),
+    ('[sweep]\nworlds = ["atlantis"]\nseeds = [0]\n', "unknown world 'atlantis'"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\nspeling = 1\n', "unknown key 'speling'"),
+    ('flavour = "x"\n[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n', "unknown key 'flavour' in the top level"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0, 1]\ncalibration_seeds = [1]\n', "held out from sweep.seeds"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n[[variants]]\nname = "v"\nmodels = ["lidar"]\n', "unknown model 'lidar'"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n[[variants]]\nname = "v"\nmodels = ["odometry"]\n'
+     'odometry = { penalty = 3 }\n', "unknown key 'penalty' in variant 'v' odometry"),
+    ('baselines = ["oracle"]\n[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n', "unknown baseline 'oracle'"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\naliasing = [1.5]\n', "aliasing values must lie in"),
+])
+def test_bad_configs_are_refused_with_the_offending_name(tmp_path, bad, message):
+    with pytest.raises(ValueError, match=message):
+        experiment.load_experiment(write_config(tmp_path, bad))

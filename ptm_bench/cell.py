@@ -1,0 +1,144 @@
+"""One sweep cell: a dataset, a model variant or baseline, inference, and its scores (SPEC §6).
+
+:func:`run_cell` takes a cell from :func:`ptm_bench.experiment.expand_cells`
+and returns its table row: the scores of :func:`ptm_bench.scoring.score`,
+the sampler diagnostics, the calibrated parameters, the top five topologies
+and thinned sampler traces (as JSON, so that summaries and figures need only
+the table), and the wall time. Everything random is seeded from the cell's
+seed: the dataset by the simulator, and the inference streams (sampler,
+importance-sampling noise) from ``SeedSequence(seed, spawn_key=(INFERENCE_KEY,))``,
+a branch the simulator's own spawned streams never use. The same streams
+serve every variant of a seed (common random numbers across variants).
+
+The posterior is paper eq. (2): the Poisson prior (eq. 8-9), the odometry
+likelihood (eq. 11-14) and the appearance likelihood (eq. 15-19, corrected).
+
+    >>> cells = expand_cells(load_experiment("experiments/exp3_nested.toml"), Path("results/exp3_nested"))
+    >>> row = run_cell(cells[0])
+    >>> row["gt_mass"], row["gt_rank"], row["wall_s"]
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+import ptm
+
+from . import scoring
+from .baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
+from .calibration import calibration_datasets, fitted_appearance, penalty_radius
+from .datacache import dataset_for
+
+__all__ = ["INFERENCE_KEY", "run_cell", "build_posterior"]
+
+#: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
+INFERENCE_KEY = 7_000
+TOP_K = 5
+TRACE_POINTS = 200
+
+
+def run_cell(cell: dict) -> dict:
+    """Generate (or load) the cell's dataset, run its variant or baseline, and score it."""
+    started = time.perf_counter()
+    settings = cell["settings"]
+    dataset = dataset_for(cell["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
+                          cell["generator_options"], cell["cache_dir"], settings["appearance"]["components"])
+    if dataset.labels is None:
+        raise ValueError(f"dataset of {cell['cell_id']} has no ground-truth labels to score against")
+    inference_started = time.perf_counter()
+    if cell["method"] == "baseline":
+        row = _run_baseline(cell, dataset)
+    else:
+        row = _run_inference(cell, dataset)
+    row["true_labels"] = json.dumps(list(ptm.canonical(dataset.labels)))
+    row["inference_wall_s"] = time.perf_counter() - inference_started
+    row["wall_s"] = time.perf_counter() - started
+    return row
+
+
+def _run_baseline(cell: dict, dataset: ptm.Dataset) -> dict:
+    features = BASELINE_FEATURES[cell["variant"]]
+    threshold = fit_threshold(calibration_datasets(cell), features)
+    labels = greedy_threshold_labels(features(dataset), threshold)
+    row = scoring.score(scoring.point_mass(labels), dataset.labels)
+    row["threshold"] = threshold
+    row["top5"] = json.dumps([[list(labels), 1.0]])
+    return row
+
+
+def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, dict]:
+    """The posterior of the cell's variant, and the calibrated parameters it used (for the table)."""
+    settings, models, used = cell["settings"], [], {}
+    _, importance_seed = _inference_seeds(cell["seed"])
+    if "odometry" in settings["models"]:
+        odometry = settings["odometry"]
+        used["penalty_radius"] = penalty_radius(odometry, dataset.meta)
+        used["max_penalty"] = float(odometry["max_penalty"])
+        models.append(ptm.OdometryModel(
+            sigma_xy=odometry["sigma_xy"], sigma_theta=odometry["sigma_theta"],
+            sigma_topology=odometry["sigma_topology"], penalty_radius=used["penalty_radius"],
+            max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
+        ))
+    if "appearance" in settings["models"]:
+        appearance = fitted_appearance(calibration_datasets(cell), settings["appearance"]["evidence"])
+        used["appearance_hyperparameters"] = json.dumps(
+            {name: np.round(np.atleast_1d(getattr(appearance, name)), 6).tolist() for name in ("mu", "kappa", "alpha", "beta")})
+        models.append(appearance)
+    used["prior_rate"] = _prior_rate(settings["inference"]["prior_rate"], dataset.meta)
+    return ptm.Posterior(dataset, ptm.PoissonPrior(used["prior_rate"]), models), used
+
+
+def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
+    inference = cell["settings"]["inference"]
+    posterior, used = build_posterior(cell, dataset)
+    sampler_seed, _ = _inference_seeds(cell["seed"])
+    if inference["method"] == "exact":
+        result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
+    else:
+        moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
+        result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
+                          seed=sampler_seed, chains=inference["chains"], moves=moves,
+                          delayed_acceptance=inference["delayed_acceptance"])
+    row = scoring.score(scoring.distribution_of(result), dataset.labels, coassignment=result.coassignment())
+    row.update(used)
+    row.update(_flat_diagnostics(result.diagnostics))
+    row["entropy"] = result.entropy()
+    row["top5"] = json.dumps([[list(labels), round(probability, 6)] for labels, probability in result.top(TOP_K)])
+    for name, trace in result.traces.items():
+        row[f"trace_{name}"] = json.dumps(_thinned(trace).tolist())
+    return row
+
+
+def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
+    sampler, importance = np.random.SeedSequence(seed, spawn_key=(INFERENCE_KEY,)).spawn(2)
+    return sampler, importance
+
+
+def _prior_rate(configured, meta: dict) -> float:
+    if configured is not None:
+        return float(configured)
+    places = meta.get("places")
+    if places is None:
+        raise ValueError("inference.prior_rate is not set and the dataset meta has no 'places' to derive it from")
+    return float(len(places) if isinstance(places, (list, dict)) else places)
+
+
+def _flat_diagnostics(diagnostics: dict, prefix: str = "") -> dict:
+    """Scalar diagnostics as ``diag_<name>`` columns; nested per-term dicts become ``diag_<term>_<name>``."""
+    flat = {}
+    for key, value in diagnostics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flat_diagnostics(value, prefix=f"{name}_"))
+        elif isinstance(value, (bool, int, float, np.integer, np.floating, str)):
+            flat[f"diag_{name}"] = value.item() if isinstance(value, np.generic) else value
+    return flat
+
+
+def _thinned(trace) -> np.ndarray:
+    trace = np.asarray(trace, dtype=float)
+    step = max(1, trace.shape[-1] // TRACE_POINTS)
+    return np.round(trace[..., ::step], 3)

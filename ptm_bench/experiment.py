@@ -1,0 +1,286 @@
+"""Experiment configs: TOML files in ``experiments/``, validated and expanded into sweep cells (SPEC §6).
+
+A config names the worlds, aliasing and noise levels, scored seeds and the
+separate calibration seeds, the inference settings, and the model variants
+to compare; :func:`load_experiment` validates it (an unknown key, world,
+model or baseline raises ``ValueError`` naming it) and :func:`expand_cells`
+crosses worlds x aliasing x noise x seeds x (variants + baselines) into the
+cells that :func:`ptm_bench.sweep.run_sweep` runs with
+:func:`ptm_bench.cell.run_cell`. The format, with every key and its default,
+is :data:`DEFAULTS`; a variant may override any key of ``[inference]``,
+``[odometry]`` and ``[appearance]``::
+
+    name = "exp3_nested"
+    [sweep]
+    worlds = ["nested_loops"]
+    seeds = [0, 1, 2]
+    calibration_seeds = [100, 101]
+    [[variants]]
+    name = "odometry+appearance"
+    models = ["odometry", "appearance"]
+
+    >>> experiment = load_experiment("experiments/exp3_nested.toml")
+    >>> cells = expand_cells(experiment, results_dir=Path("results/exp3_nested"))
+    >>> len(cells), cells[0]["cell_id"]
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["DEFAULTS", "MODEL_NAMES", "BASELINE_NAMES", "Experiment", "describe", "expand_cells", "load_experiment",
+           "parse_experiment"]
+
+MODEL_NAMES = ("odometry", "appearance")
+BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
+METHODS = ("mcmc", "exact")
+HYPERPARAMETER_SOURCES = ("fit", "paper")
+EVIDENCE_FORMS = ("corrected", "paper_eq19")
+WORLD_GENERATORS = ("corridor_grid",)
+
+#: Every section and key a config may set, with its default. ``None`` means "required" for
+#: ``sweep.worlds`` and ``sweep.seeds``, and "choose automatically" elsewhere.
+DEFAULTS = {
+    "sweep": {
+        "worlds": None,  # names from ptm_bench.floorplan.list_worlds(), or {generator = "corridor_grid", ...} tables
+        "aliasing": [0.0],
+        "noise": [1.0],
+        "seeds": None,
+        "calibration_seeds": [1000, 1001, 1002],
+        "generator_options": {},  # extra keyword arguments of ptm_bench.generate.generate_dataset
+    },
+    "inference": {
+        "method": "mcmc",
+        "n_samples": 5000,
+        "burn_in": 500,
+        "thin": 1,
+        "chains": 2,
+        "prior_rate": None,  # None: the number of places of the world (generator meta "places")
+        "delayed_acceptance": True,
+        "exact_max_n": 10,
+        "moves": "default",  # "default" (split/merge + Gibbs) or "paper" (split/merge only)
+    },
+    "odometry": {
+        "sigma_xy": 0.1,
+        "sigma_theta": 0.05,
+        "sigma_topology": 0.3,
+        "penalty_radius": None,  # None: penalty_radius_factor x the world's min_place_spacing
+        "penalty_radius_factor": 0.75,
+        "max_penalty": 100.0,
+        "n_importance": 100,
+    },
+    "appearance": {
+        "hyperparameters": "fit",  # "fit": empirical Bayes on the calibration seeds; "paper": s2 mean 500, variance 50
+        "evidence": "corrected",
+        "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
+    },
+}
+
+_VARIANT_KEYS = {"name", "models", "inference", "odometry", "appearance"}
+_TOP_LEVEL_KEYS = {"name", "description", "variants", "baselines", "paper", *DEFAULTS}
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A validated experiment config."""
+
+    name: str
+    description: str
+    sweep: dict
+    variants: tuple[dict, ...]  # each: name, models, inference, odometry, appearance (merged with the defaults)
+    baselines: tuple[str, ...]
+    paper: dict  # the paper's reported figures per variant, for the summary
+    settings: dict  # the experiment-wide inference, odometry and appearance sections (baselines use these)
+
+
+def load_experiment(path) -> Experiment:
+    """Read and validate an experiment config (TOML); the name defaults to the file's stem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no experiment config at {path}")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{path}: not valid TOML: {error}") from None
+    return parse_experiment(raw, default_name=path.stem, source=str(path))
+
+
+def parse_experiment(raw: dict, default_name: str = "experiment", source: str = "config") -> Experiment:
+    """Validate a config dict (as read from TOML) and fill in the defaults."""
+    _reject_unknown(raw, _TOP_LEVEL_KEYS, source, "the top level")
+    sections = {}
+    for section, defaults in DEFAULTS.items():
+        given = raw.get(section, {})
+        if not isinstance(given, dict):
+            raise ValueError(f"{source}: [{section}] must be a table")
+        _reject_unknown(given, defaults, source, f"[{section}]")
+        sections[section] = {**copy.deepcopy(defaults), **given}
+    sweep = sections["sweep"]
+    for key in ("worlds", "seeds"):
+        if not sweep[key]:
+            raise ValueError(f"{source}: [sweep] needs a non-empty '{key}' list")
+    sweep["worlds"] = [_validated_world(world, source) for world in sweep["worlds"]]
+    for key in ("aliasing", "noise"):
+        values = _number_list(sweep[key], f"sweep.{key}", source)
+        if key == "aliasing" and any(not 0.0 <= value <= 1.0 for value in values):
+            raise ValueError(f"{source}: sweep.aliasing values must lie in [0, 1], got {values}")
+        if key == "noise" and any(value < 0.0 for value in values):
+            raise ValueError(f"{source}: sweep.noise values must be >= 0, got {values}")
+        sweep[key] = values
+    for key in ("seeds", "calibration_seeds"):
+        sweep[key] = _seed_list(sweep[key], f"sweep.{key}", source)
+    shared = sorted(set(sweep["seeds"]) & set(sweep["calibration_seeds"]))
+    if shared:
+        raise ValueError(f"{source}: sweep.calibration_seeds must be held out from sweep.seeds; both contain {shared}")
+    if not isinstance(sweep["generator_options"], dict):
+        raise ValueError(f"{source}: sweep.generator_options must be a table")
+
+    raw_variants = raw.get("variants") or [{"name": "odometry+appearance", "models": list(MODEL_NAMES)}]
+    variants = tuple(_validated_variant(variant, sections, source) for variant in raw_variants)
+    names = [variant["name"] for variant in variants]
+    baselines = tuple(raw.get("baselines", ()))
+    for baseline in baselines:
+        if baseline not in BASELINE_NAMES:
+            raise ValueError(f"{source}: unknown baseline {baseline!r}; known baselines: {', '.join(BASELINE_NAMES)}")
+    duplicates = sorted({name for name in names + list(baselines) if (names + list(baselines)).count(name) > 1})
+    if duplicates:
+        raise ValueError(f"{source}: variant names must be unique; repeated: {duplicates}")
+    paper = raw.get("paper", {})
+    for variant_name in paper:
+        if variant_name not in names:
+            raise ValueError(f"{source}: [paper] names unknown variant {variant_name!r}; variants: {names}")
+    return Experiment(
+        name=str(raw.get("name", default_name)),
+        description=str(raw.get("description", "")),
+        sweep=sweep,
+        variants=variants,
+        baselines=baselines,
+        paper=paper,
+        settings={section: sections[section] for section in ("inference", "odometry", "appearance")},
+    )
+
+
+def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
+    """The sweep cells: worlds x aliasing x noise x seeds x (variants, then baselines)."""
+    sweep = experiment.sweep
+    cache_dir = str(Path(results_dir) / "datasets")
+    cells = []
+    for world, aliasing, noise, seed in itertools.product(sweep["worlds"], sweep["aliasing"], sweep["noise"], sweep["seeds"]):
+        condition = {
+            "experiment": experiment.name,
+            "world": _world_name(world),
+            "aliasing": aliasing,
+            "noise": noise,
+            "seed": seed,
+        }
+        shared = {
+            "world_spec": world,
+            "calibration_seeds": list(sweep["calibration_seeds"]),
+            "generator_options": sweep["generator_options"],
+            "cache_dir": cache_dir,
+        }
+        runs = [(variant["name"], "+".join(variant["models"]), variant["inference"]["method"], variant) for variant in experiment.variants]
+        runs += [(baseline, baseline, "baseline", _baseline_settings(experiment, baseline)) for baseline in experiment.baselines]
+        for variant_name, models, method, settings in runs:
+            cell_id = f"{condition['world']}|a={aliasing:g}|noise={noise:g}|seed={seed}|{variant_name}"
+            cells.append({"cell_id": cell_id, **condition, "variant": variant_name, "models": models,
+                          "method": method, "settings": settings, **shared})
+    return cells
+
+
+def _baseline_settings(experiment: Experiment, baseline: str) -> dict:
+    # A baseline uses the experiment-wide settings (penalty radius, appearance components).
+    return {"name": baseline, "models": [], **experiment.settings}
+
+
+def _validated_variant(variant, sections: dict, source: str) -> dict:
+    if not isinstance(variant, dict):
+        raise ValueError(f"{source}: each [[variants]] entry must be a table")
+    name = variant.get("name")
+    where = f"variant {name!r}" if name else "a [[variants]] entry"
+    _reject_unknown(variant, _VARIANT_KEYS, source, where)
+    if not name or not isinstance(name, str) or "|" in name:
+        raise ValueError(f"{source}: {where} needs a 'name' (a string without '|')")
+    models = variant.get("models")
+    if not models or not isinstance(models, list):
+        raise ValueError(f"{source}: {where} needs a non-empty 'models' list")
+    for model in models:
+        if model not in MODEL_NAMES:
+            raise ValueError(f"{source}: {where}: unknown model {model!r}; known models: {', '.join(MODEL_NAMES)}")
+    merged = {"name": name, "models": [model for model in MODEL_NAMES if model in models]}
+    for section in ("inference", "odometry", "appearance"):
+        overrides = variant.get(section, {})
+        if not isinstance(overrides, dict):
+            raise ValueError(f"{source}: {where}: '{section}' must be a table")
+        _reject_unknown(overrides, DEFAULTS[section], source, f"{where} {section}")
+        merged[section] = {**sections[section], **overrides}
+    _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
+    _check_choice(merged["inference"]["moves"], ("default", "paper"), f"{where} inference.moves", source)
+    _check_choice(merged["appearance"]["hyperparameters"], HYPERPARAMETER_SOURCES, f"{where} appearance.hyperparameters", source)
+    _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
+    return merged
+
+
+def _validated_world(world, source: str):
+    if isinstance(world, str):
+        from .floorplan import list_worlds  # imported late: the simulator is optional for parsing tests
+
+        known = list_worlds()
+        if world not in known and not Path(world).suffix == ".toml":
+            raise ValueError(f"{source}: unknown world {world!r}; known worlds: {', '.join(sorted(known))}")
+        return world
+    if isinstance(world, dict):
+        generator = world.get("generator")
+        if generator not in WORLD_GENERATORS:
+            raise ValueError(f"{source}: unknown world generator {generator!r}; known: {', '.join(WORLD_GENERATORS)}")
+        if "name" not in world:
+            raise ValueError(f"{source}: a generated world needs a 'name' for the table")
+        return dict(world)
+    raise ValueError(f"{source}: a world is a name or a table, got {world!r}")
+
+
+def _world_name(world) -> str:
+    return world if isinstance(world, str) else world["name"]
+
+
+def _reject_unknown(table: dict, known, source: str, where: str) -> None:
+    for key in table:
+        if key not in known:
+            raise ValueError(f"{source}: unknown key {key!r} in {where}; known keys: {', '.join(sorted(known))}")
+
+
+def _check_choice(value, choices, where: str, source: str) -> None:
+    if value not in choices:
+        raise ValueError(f"{source}: {where} must be one of {', '.join(choices)}, got {value!r}")
+
+
+def _number_list(values, where: str, source: str) -> list[float]:
+    if not isinstance(values, list) or not values:
+        raise ValueError(f"{source}: {where} must be a non-empty list of numbers")
+    try:
+        return [float(value) for value in values]
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: {where} must be a list of numbers, got {values!r}") from None
+
+
+def _seed_list(values, where: str, source: str) -> list[int]:
+    if not isinstance(values, list) or not values or any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in values):
+        raise ValueError(f"{source}: {where} must be a non-empty list of non-negative integers, got {values!r}")
+    if len(set(values)) != len(values):
+        raise ValueError(f"{source}: {where} has repeated seeds {values!r}")
+    return list(values)
+
+
+def describe(experiment: Experiment) -> str:
+    """A one-paragraph human description of the sweep size."""
+    sweep = experiment.sweep
+    runs = len(experiment.variants) + len(experiment.baselines)
+    count = len(sweep["worlds"]) * len(sweep["aliasing"]) * len(sweep["noise"]) * len(sweep["seeds"]) * runs
+    return (f"{experiment.name}: {count} cells = {len(sweep['worlds'])} world(s) x {len(sweep['aliasing'])} aliasing "
+            f"x {len(sweep['noise'])} noise x {len(sweep['seeds'])} seeds x {runs} variants/baselines "
+            f"({json.dumps([variant['name'] for variant in experiment.variants] + list(experiment.baselines))})")
