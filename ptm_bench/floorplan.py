@@ -1,0 +1,561 @@
+"""Floor plans: corridor-and-loop worlds read from TOML, presets, a procedural grid, palettes.
+
+A floor (SPEC §5) is a graph of junction nodes joined by straight corridors
+(width, wall height), a set of *places* (ids and positions where the landmark
+detector fires), appearance *palettes*, and *routes* (node sequences the robot
+drives). This module parses and validates the TOML files in ``worlds/``
+(errors name the field and the line), generates corridor grids for sweeps, and
+implements the aliasing map of SPEC §5: P places receive
+``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes.
+
+    >>> floor = load_world("nested_loops")
+    >>> len(floor.places), round(floor.route_length(), 1)
+    >>> palette_count(len(floor.places), aliasing=0.5)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "Corridor",
+    "Floorplan",
+    "Palette",
+    "WORLDS_DIR",
+    "assign_palettes",
+    "corridor_grid",
+    "list_worlds",
+    "load_world",
+    "palette_count",
+    "palette_library",
+    "parse_floorplan",
+]
+
+WORLDS_DIR = Path(__file__).resolve().parent.parent / "worlds"
+SECTOR_COUNT = 4  # a palette colours the walls around a place in four compass sectors
+ROBOT_CLEARANCE = 0.3  # [m] a place must leave this much room to the walls
+
+
+@dataclass(frozen=True)
+class Corridor:
+    """A straight corridor between two nodes; walls run along both sides."""
+
+    start: str
+    end: str
+    width: float
+    wall_height: float
+
+
+@dataclass(frozen=True)
+class Palette:
+    """The look of a place: RGB colours of the walls in four compass sectors and of its floor marker.
+
+    Sector j covers bearings [90j - 45, 90j + 45) degrees seen from the place,
+    in the world frame, so the pattern is a property of the place, not of the
+    robot's heading.
+    """
+
+    sectors: tuple[tuple[float, float, float], ...]
+    marker: tuple[float, float, float]
+
+    def luminance(self) -> np.ndarray:
+        """Luma of each sector colour (the quantity the grayscale signature sees)."""
+        return np.asarray(self.sectors) @ np.array([0.299, 0.587, 0.114])
+
+
+@dataclass(frozen=True)
+class Floorplan:
+    """A validated floor: geometry, places, palettes and routes (SPEC §5)."""
+
+    name: str
+    nodes: dict[str, tuple[float, float]]
+    corridors: tuple[Corridor, ...]
+    places: dict[int, tuple[float, float]]
+    routes: dict[str, tuple[str, ...]]
+    palettes: tuple[Palette, ...] = ()
+    detection_radius: float = 1.0
+    zone_radius: float = 3.0
+    speed: float = 1.0
+    lateral_jitter: float = 0.2
+    description: str = ""
+    source: str = ""
+
+    @property
+    def min_place_spacing(self) -> float:
+        """Smallest distance between two distinct places [m] (inf with one place)."""
+        points = np.array(list(self.places.values()), dtype=float)
+        if len(points) < 2:
+            return math.inf
+        gaps = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+        return float(gaps[np.triu_indices(len(points), 1)].min())
+
+    def route_points(self, route: str = "main") -> np.ndarray:
+        """The (R, 2) waypoint coordinates of a route."""
+        if route not in self.routes:
+            raise ValueError(f"route: {self.name} has no route {route!r}; it has {sorted(self.routes)}")
+        return np.array([self.nodes[node] for node in self.routes[route]], dtype=float)
+
+    def route_length(self, route: str = "main") -> float:
+        """Length of a route's polyline [m]."""
+        points = self.route_points(route)
+        return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the free space, walls excluded."""
+        points = np.array(list(self.nodes.values()), dtype=float)
+        margin = max(corridor.width for corridor in self.corridors) / 2
+        return (*(points.min(axis=0) - margin), *(points.max(axis=0) + margin))
+
+
+# -- loading ---------------------------------------------------------------------------------
+
+
+def list_worlds() -> list[str]:
+    """Names of the preset floors in ``worlds/``."""
+    return sorted(path.stem for path in WORLDS_DIR.glob("*.toml"))
+
+
+def load_world(name_or_path) -> Floorplan:
+    """A preset by name (``"office"``) or a floor file by path; a Floorplan passes through."""
+    if isinstance(name_or_path, Floorplan):
+        return name_or_path
+    text = str(name_or_path)
+    path = Path(text)
+    if path.suffix == ".toml" or path.is_file():
+        if not path.is_file():
+            raise ValueError(f"world: no floor file at {path}")
+        return parse_floorplan(path.read_text(), source=str(path))
+    known = list_worlds()
+    if text not in known:
+        raise ValueError(f"world: unknown world {text!r}; known worlds: {', '.join(known)}")
+    return parse_floorplan((WORLDS_DIR / f"{text}.toml").read_text(), source=str(WORLDS_DIR / f"{text}.toml"))
+
+
+def parse_floorplan(text: str, source: str = "<string>") -> Floorplan:
+    """Parse and validate a floor described in TOML; errors say ``source:line: field: problem``."""
+    try:
+        document = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{source}: malformed TOML: {error}") from None
+    reader = _Reader(document, _KeyLines(text), source)
+    return reader.floorplan()
+
+
+class _KeyLines:
+    """Line numbers of TOML keys, e.g. ``corridors[2].width`` -> 17, found by a line scan."""
+
+    _HEADER = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.\-]+)\s*\]\]?")
+    _KEY = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
+
+    def __init__(self, text: str):
+        self.lines: dict[str, int] = {}
+        table = ""
+        counts: dict[str, int] = {}
+        for number, line in enumerate(text.splitlines(), start=1):
+            header = self._HEADER.match(line)
+            if header:
+                name = header.group(2)
+                if header.group(1) == "[[":
+                    index = counts.get(name, 0)
+                    counts[name] = index + 1
+                    table = f"{name}[{index}]"
+                else:
+                    table = name
+                self.lines.setdefault(table, number)
+                continue
+            key = self._KEY.match(line)
+            if key:
+                path = f"{table}.{key.group(1).strip(chr(34))}" if table else key.group(1).strip('"')
+                self.lines.setdefault(path, number)
+
+    def line(self, path: str) -> int | None:
+        """The line of ``path`` or of its closest enclosing table."""
+        while path:
+            if path in self.lines:
+                return self.lines[path]
+            path = path.rpartition(".")[0] if "." in path else ""
+        return None
+
+
+class _Reader:
+    """Typed access to the parsed TOML document with located error messages."""
+
+    def __init__(self, document: dict, key_lines: _KeyLines, source: str):
+        self.document = document
+        self.key_lines = key_lines
+        self.source = source
+
+    def fail(self, path: str, problem: str):
+        line = self.key_lines.line(path)
+        where = f"{self.source}:{line}" if line else self.source
+        raise ValueError(f"{where}: {path}: {problem}")
+
+    def number(self, table: dict, key: str, path: str, default=None, positive=True) -> float:
+        if key not in table:
+            if default is None:
+                self.fail(path, "missing")
+            return float(default)
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(path, f"must be a number, got {value!r}")
+        if positive and value <= 0:
+            self.fail(path, f"must be positive, got {value!r}")
+        return float(value)
+
+    def point(self, value, path: str) -> tuple[float, float]:
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+        ):
+            self.fail(path, f"must be a point [x, y] in metres, got {value!r}")
+        return float(value[0]), float(value[1])
+
+    def colour(self, value, path: str) -> tuple[float, float, float]:
+        if (
+            not isinstance(value, list)
+            or len(value) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1 for v in value)
+        ):
+            self.fail(path, f"must be an RGB colour [r, g, b] in [0, 1], got {value!r}")
+        return float(value[0]), float(value[1]), float(value[2])
+
+    def floorplan(self) -> Floorplan:
+        document = self.document
+        known = {"name", "description", "defaults", "nodes", "corridors", "places", "palettes", "routes"}
+        for key in document:
+            if key not in known:
+                self.fail(key, f"unknown field (expected one of {', '.join(sorted(known))})")
+        name = document.get("name")
+        if not isinstance(name, str) or not name:
+            self.fail("name", "must be a non-empty string")
+        defaults = document.get("defaults", {})
+        if not isinstance(defaults, dict):
+            self.fail("defaults", "must be a table")
+        width = self.number(defaults, "corridor_width", "defaults.corridor_width", default=2.0)
+        height = self.number(defaults, "wall_height", "defaults.wall_height", default=2.5)
+        radius = self.number(defaults, "detection_radius", "defaults.detection_radius", default=1.0)
+        zone = self.number(defaults, "zone_radius", "defaults.zone_radius", default=3.0)
+        speed = self.number(defaults, "speed", "defaults.speed", default=1.0)
+        jitter = self.number(defaults, "lateral_jitter", "defaults.lateral_jitter", default=0.2, positive=False)
+        if jitter < 0:
+            self.fail("defaults.lateral_jitter", f"must be >= 0, got {jitter}")
+
+        nodes_table = document.get("nodes")
+        if not isinstance(nodes_table, dict) or not nodes_table:
+            self.fail("nodes", "must be a table of node = [x, y] entries")
+        nodes = {str(key): self.point(value, f"nodes.{key}") for key, value in nodes_table.items()}
+
+        corridor_rows = document.get("corridors")
+        if not isinstance(corridor_rows, list) or not corridor_rows:
+            self.fail("corridors", "must be a non-empty array of [[corridors]] tables")
+        corridors = []
+        for index, row in enumerate(corridor_rows):
+            path = f"corridors[{index}]"
+            ends = []
+            for key in ("from", "to"):
+                node = row.get(key)
+                if node not in nodes:
+                    self.fail(f"{path}.{key}", f"unknown node {node!r}; nodes are {', '.join(sorted(nodes))}")
+                ends.append(node)
+            if ends[0] == ends[1]:
+                self.fail(f"{path}.to", "a corridor must join two different nodes")
+            corridors.append(
+                Corridor(
+                    ends[0],
+                    ends[1],
+                    self.number(row, "width", f"{path}.width", default=width),
+                    self.number(row, "wall_height", f"{path}.wall_height", default=height),
+                )
+            )
+
+        place_rows = document.get("places")
+        if not isinstance(place_rows, list) or not place_rows:
+            self.fail("places", "must be a non-empty array of [[places]] tables")
+        places: dict[int, tuple[float, float]] = {}
+        for index, row in enumerate(place_rows):
+            path = f"places[{index}]"
+            place_id = row.get("id")
+            if isinstance(place_id, bool) or not isinstance(place_id, int) or place_id < 0:
+                self.fail(f"{path}.id", f"must be a non-negative integer, got {place_id!r}")
+            if place_id in places:
+                self.fail(f"{path}.id", f"duplicate place id {place_id}")
+            if ("node" in row) == ("at" in row):
+                self.fail(path, "give exactly one of node = NAME or at = [x, y]")
+            if "node" in row:
+                if row["node"] not in nodes:
+                    self.fail(f"{path}.node", f"unknown node {row['node']!r}")
+                places[place_id] = nodes[row["node"]]
+            else:
+                places[place_id] = self.point(row["at"], f"{path}.at")
+            clearance = _clearance(places[place_id], nodes, corridors)
+            if clearance < ROBOT_CLEARANCE:
+                self.fail(path, f"place {place_id} at {places[place_id]} is not inside a corridor")
+
+        palettes = []
+        for index, row in enumerate(document.get("palettes", [])):
+            path = f"palettes[{index}]"
+            sectors = row.get("sectors")
+            if not isinstance(sectors, list) or len(sectors) != SECTOR_COUNT:
+                self.fail(f"{path}.sectors", f"must list {SECTOR_COUNT} RGB colours")
+            palettes.append(
+                Palette(
+                    tuple(self.colour(colour, f"{path}.sectors") for colour in sectors),
+                    self.colour(row.get("marker"), f"{path}.marker"),
+                )
+            )
+
+        route_table = document.get("routes")
+        if not isinstance(route_table, dict) or "main" not in route_table:
+            self.fail("routes", "must be a table with at least a `main = [node, ...]` route")
+        linked = {frozenset((c.start, c.end)) for c in corridors}
+        routes = {}
+        for route_name, sequence in route_table.items():
+            path = f"routes.{route_name}"
+            if not isinstance(sequence, list) or len(sequence) < 2:
+                self.fail(path, "must list at least two nodes")
+            for step, node in enumerate(sequence):
+                if node not in nodes:
+                    self.fail(path, f"unknown node {node!r} at position {step}")
+                if step and frozenset((sequence[step - 1], node)) not in linked:
+                    self.fail(path, f"no corridor between {sequence[step - 1]!r} and {node!r}")
+            routes[route_name] = tuple(sequence)
+
+        floor = Floorplan(
+            name=name,
+            nodes=nodes,
+            corridors=tuple(corridors),
+            places=places,
+            routes=routes,
+            palettes=tuple(palettes),
+            detection_radius=radius,
+            zone_radius=zone,
+            speed=speed,
+            lateral_jitter=jitter,
+            description=str(document.get("description", "")),
+            source=self.source,
+        )
+        if 2 * radius >= floor.min_place_spacing:
+            self.fail(
+                "defaults.detection_radius",
+                f"{radius} m is too large: two places are only {floor.min_place_spacing:.2f} m apart "
+                "(the radius must be under half the smallest spacing)",
+            )
+        return floor
+
+
+def _clearance(point, nodes, corridors) -> float:
+    """How far ``point`` is inside the free space (negative: outside), from corridor centrelines."""
+    best = -math.inf
+    p = np.asarray(point)
+    for corridor in corridors:
+        a, b = np.asarray(nodes[corridor.start]), np.asarray(nodes[corridor.end])
+        segment = b - a
+        t = np.clip(np.dot(p - a, segment) / np.dot(segment, segment), 0.0, 1.0)
+        distance = float(np.linalg.norm(p - (a + t * segment)))
+        best = max(best, corridor.width / 2 - distance)
+    return best
+
+
+# -- aliasing: palettes ------------------------------------------------------------------------
+
+
+def palette_count(n_places: int, aliasing: float) -> int:
+    """SPEC §5: ``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes for P places."""
+    if isinstance(aliasing, bool) or not isinstance(aliasing, (int, float)) or not 0.0 <= aliasing <= 1.0:
+        raise ValueError(f"aliasing must be a number in [0, 1], got {aliasing!r}")
+    if n_places < 1:
+        raise ValueError(f"n_places must be >= 1, got {n_places}")
+    return max(1, int(round(1 + (1 - aliasing) * (n_places - 1))))
+
+
+def palette_library(count: int, rng: np.random.Generator, given=()) -> tuple[Palette, ...]:
+    """``count`` palettes: the ``given`` ones first, then generated ones chosen to look different.
+
+    Candidates are scored by the Fourier signature of their idealised ring of
+    sector luminances; each new palette is the candidate farthest from those
+    already chosen (greedy farthest-point selection), so distinct palettes
+    stay distinguishable by the 5-coefficient signature.
+    """
+    chosen = list(given)[:count]
+    if len(chosen) == count:
+        return tuple(chosen)
+    levels = np.linspace(0.12, 0.92, 5)
+    pool = []
+    for _ in range(64 * count):
+        luminances = rng.choice(levels, size=SECTOR_COUNT)
+        sectors = tuple(_colour_with_luminance(rng, value) for value in luminances)
+        pool.append(Palette(sectors, _colour_with_luminance(rng, rng.choice(levels))))
+    pool_signatures = np.array([_ring_signature(p) for p in pool])
+    chosen_signatures = [_ring_signature(p) for p in chosen]
+    if not chosen:
+        chosen.append(pool[0])
+        chosen_signatures.append(pool_signatures[0])
+    while len(chosen) < count:
+        gaps = np.linalg.norm(pool_signatures[:, None, :] - np.array(chosen_signatures)[None], axis=2).min(axis=1)
+        best = int(np.argmax(gaps))
+        chosen.append(pool[best])
+        chosen_signatures.append(pool_signatures[best])
+    return tuple(chosen)
+
+
+def assign_palettes(floor: Floorplan, aliasing: float, rng: np.random.Generator) -> dict[int, int]:
+    """Place id -> palette index, using exactly ``palette_count(P, aliasing)`` distinct palettes.
+
+    A random set of C places receives one palette each; every other place gets
+    a uniformly drawn palette among those C.
+    """
+    place_ids = sorted(floor.places)
+    count = palette_count(len(place_ids), aliasing)
+    order = rng.permutation(len(place_ids))
+    assignment = np.empty(len(place_ids), dtype=int)
+    assignment[order[:count]] = np.arange(count)
+    assignment[order[count:]] = rng.integers(0, count, size=len(place_ids) - count)
+    return {place_id: int(index) for place_id, index in zip(place_ids, assignment)}
+
+
+def _colour_with_luminance(rng: np.random.Generator, luminance: float) -> tuple[float, float, float]:
+    """A random hue scaled so that its luma is ``luminance`` (clipped to the RGB cube)."""
+    direction = rng.uniform(0.2, 1.0, size=3)
+    rgb = direction * luminance / (direction @ np.array([0.299, 0.587, 0.114]))
+    return tuple(float(v) for v in np.clip(rgb, 0.0, 1.0))
+
+
+def _ring_signature(palette: Palette, samples: int = 64) -> np.ndarray:
+    """The 5-coefficient Fourier magnitudes of a palette's sector luminances around a circle."""
+    ring = np.repeat(palette.luminance(), samples // SECTOR_COUNT)
+    return np.abs(np.fft.rfft(ring)[:5]) / samples
+
+
+# -- procedural corridor grids -------------------------------------------------------------------
+
+
+def corridor_grid(
+    rows: int,
+    cols: int,
+    loops: int,
+    place_density: float,
+    seed: int,
+    spacing: float = 6.0,
+    corridor_width: float = 2.0,
+    wall_height: float = 2.5,
+    detection_radius: float = 1.0,
+    speed: float = 1.0,
+) -> Floorplan:
+    """A random corridor grid for sweeps.
+
+    Nodes sit on a ``rows x cols`` lattice ``spacing`` metres apart. A random
+    spanning tree of the lattice is carved, then ``loops`` extra lattice edges
+    are opened (each adds one independent cycle). Each node is a place with
+    probability ``place_density`` (at least two places). The route visits the
+    nodes in depth-first order of the tree, moving between them by shortest
+    paths through the whole graph (so loops get closed), and returns home.
+    """
+    for label, value, low in (("rows", rows, 1), ("cols", cols, 1), ("loops", loops, 0)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"{label} must be an integer >= {low}, got {value!r}")
+    if rows * cols < 2:
+        raise ValueError("a corridor grid needs at least two nodes (rows * cols >= 2)")
+    if not 0.0 <= place_density <= 1.0:
+        raise ValueError(f"place_density must be in [0, 1], got {place_density!r}")
+    if spacing <= 2 * detection_radius or spacing <= corridor_width:
+        raise ValueError(f"spacing {spacing} m must exceed the corridor width and twice the detection radius")
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    cells = [(r, c) for r in range(rows) for c in range(cols)]
+    lattice = sorted(
+        {tuple(sorted((a, b))) for a in cells for b in ((a[0] + 1, a[1]), (a[0], a[1] + 1)) if b in set(cells)}
+    )
+    tree = _random_spanning_tree(cells, lattice, rng)
+    spare = [edge for edge in lattice if edge not in tree]
+    if loops > len(spare):
+        raise ValueError(f"loops: a {rows}x{cols} grid has room for at most {len(spare)} loops, got {loops}")
+    extra = [spare[i] for i in sorted(rng.choice(len(spare), size=loops, replace=False))]
+    edges = sorted(tree) + extra
+    name_of = {cell: f"n{cell[0]}_{cell[1]}" for cell in cells}
+    nodes = {name_of[cell]: (cell[1] * spacing, cell[0] * spacing) for cell in cells}
+    corridors = tuple(Corridor(name_of[a], name_of[b], corridor_width, wall_height) for a, b in edges)
+    is_place = rng.random(len(cells)) < place_density
+    if is_place.sum() < 2:
+        is_place[rng.choice(len(cells), size=2, replace=False)] = True
+    places = {i: nodes[name_of[cell]] for i, cell in enumerate(c for c, flag in zip(cells, is_place) if flag)}
+    route = _tour(cells, tree, edges)
+    return Floorplan(
+        name=f"grid_{rows}x{cols}_loops{loops}_density{place_density:g}_seed{seed}",
+        nodes=nodes,
+        corridors=corridors,
+        places=places,
+        routes={"main": tuple(name_of[cell] for cell in route)},
+        detection_radius=detection_radius,
+        zone_radius=min(3.0, spacing / 2),
+        speed=speed,
+        description=f"procedural corridor grid ({rows}x{cols}, {loops} loops, density {place_density:g})",
+        source="corridor_grid",
+    )
+
+
+def _random_spanning_tree(cells, lattice, rng) -> set:
+    """Randomised Kruskal: shuffle the lattice edges, keep those joining two components."""
+    parent = {cell: cell for cell in cells}
+
+    def root(cell):
+        while parent[cell] != cell:
+            parent[cell] = parent[parent[cell]]
+            cell = parent[cell]
+        return cell
+
+    tree = set()
+    for index in rng.permutation(len(lattice)):
+        a, b = lattice[index]
+        ra, rb = root(a), root(b)
+        if ra != rb:
+            parent[ra] = rb
+            tree.add((a, b))
+    return tree
+
+
+def _tour(cells, tree, edges) -> list:
+    """Depth-first order of the tree, consecutive nodes joined by shortest paths, back to the start."""
+    tree_neighbours = {cell: [] for cell in cells}
+    for a, b in sorted(tree):
+        tree_neighbours[a].append(b)
+        tree_neighbours[b].append(a)
+    order, stack, seen = [], [cells[0]], set()
+    while stack:
+        cell = stack.pop()
+        if cell in seen:
+            continue
+        seen.add(cell)
+        order.append(cell)
+        stack.extend(sorted(tree_neighbours[cell], reverse=True))
+    neighbours = {cell: [] for cell in cells}
+    for a, b in edges:
+        neighbours[a].append(b)
+        neighbours[b].append(a)
+    route = [order[0]]
+    for target in order[1:] + [order[0]]:
+        route.extend(_shortest_path(neighbours, route[-1], target)[1:])
+    return route
+
+
+def _shortest_path(neighbours, start, goal) -> list:
+    previous = {start: None}
+    queue = deque([start])
+    while queue:
+        cell = queue.popleft()
+        if cell == goal:
+            break
+        for nxt in sorted(neighbours[cell]):
+            if nxt not in previous:
+                previous[nxt] = cell
+                queue.append(nxt)
+    path = [goal]
+    while previous[path[-1]] is not None:
+        path.append(previous[path[-1]])
+    return path[::-1]
