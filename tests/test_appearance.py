@@ -1,0 +1,98 @@
+"""The appearance evidence (SPEC §3.2) against direct numerical integration of the model."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from ptm import AppearanceModel, Dataset, Partition, inverse_gamma_from_mean_variance
+
+
+def numerical_evidence(values, mu, kappa, alpha, beta):
+    """log of the double integral over y and s2 of IG(s2) N(y; mu, s2/kappa) prod N(a; y, s2).
+
+    Trapezoid rule on a dense grid: log s2 on a wide range (Jacobian s2), and for
+    each s2 a y grid spanning +-12 standard deviations of where the integrand lives.
+    """
+    values = np.asarray(values, dtype=float)
+    log_variance = np.linspace(-14.0, 6.0, 4001)
+    variance = np.exp(log_variance)[:, None]
+    centre = (kappa * mu + values.sum()) / (kappa + values.size)
+    half_width = 12.0 * np.sqrt(variance / (kappa + values.size))
+    y = centre + half_width * np.linspace(-1.0, 1.0, 801)[None, :]
+    log_density = (stats.invgamma.logpdf(variance, alpha, scale=beta)
+                   + stats.norm.logpdf(y, mu, np.sqrt(variance / kappa))
+                   + stats.norm.logpdf(values[None, None, :], y[:, :, None], np.sqrt(variance)[:, :, None]).sum(axis=2))
+    over_y = integrate.trapezoid(np.exp(log_density), y, axis=1)
+    return math.log(integrate.trapezoid(over_y * variance[:, 0], log_variance))
+
+
+@pytest.mark.parametrize("values", [[0.9], [0.9, 1.1], [0.7, 1.2, 1.4], [1.5, 1.6, 1.4, 1.55]])
+def test_evidence_matches_numerical_integration(values):
+    mu, kappa, alpha, beta = 1.0, 0.5, 2.5, 0.1
+    term = AppearanceModel(mu, kappa, alpha, beta).bind(Dataset(signatures=np.array(values)[:, None]))
+    closed_form = term.block_log_likelihood(tuple(range(len(values))))
+    assert closed_form == pytest.approx(numerical_evidence(values, mu, kappa, alpha, beta), abs=1e-5)
+
+
+def test_papers_printed_formula_is_a_different_function():
+    values = np.array([[0.7], [1.2], [1.4]])
+    dataset = Dataset(signatures=values)
+    corrected = AppearanceModel(1.0, 0.5, 2.5, 0.1).bind(dataset)
+    printed = AppearanceModel(1.0, 0.5, 2.5, 0.1, evidence="paper_eq19").bind(dataset)
+    merged, split = Partition.from_labels([0, 0, 0]), Partition.from_labels([0, 1, 1])
+    corrected_ratio = corrected.log_likelihood(merged) - corrected.log_likelihood(split)
+    printed_ratio = printed.log_likelihood(merged) - printed.log_likelihood(split)
+    assert abs(corrected_ratio - printed_ratio) > 0.1
+
+
+def test_components_are_independent_and_hyperparameters_broadcast():
+    rng = np.random.default_rng(3)
+    signatures = rng.uniform(0.1, 0.5, size=(5, 3))
+    kappa = np.array([0.2, 0.5, 1.0])
+    full = AppearanceModel(0.3, kappa, 3.0, 0.01).bind(Dataset(signatures=signatures))
+    block = (0, 2, 3)
+    per_component = sum(
+        AppearanceModel(0.3, kappa[k], 3.0, 0.01).bind(Dataset(signatures=signatures[:, [k]])).block_log_likelihood(block)
+        for k in range(3))
+    assert full.block_log_likelihood(block) == pytest.approx(per_component, rel=1e-12)
+
+
+def test_inverse_gamma_from_mean_and_variance():
+    alpha, beta = inverse_gamma_from_mean_variance(500.0, 50.0)
+    distribution = stats.invgamma(alpha, scale=beta)
+    assert distribution.mean() == pytest.approx(500.0, rel=1e-10)
+    assert distribution.var() == pytest.approx(50.0, rel=1e-8)
+
+
+def test_empirical_bayes_fit_recovers_the_generating_noise_level():
+    rng = np.random.default_rng(11)
+    noise, spread = 0.02, 0.15
+    datasets = []
+    for _ in range(4):
+        labels = np.repeat(np.arange(8), 4)
+        centres = rng.normal(0.3, spread, size=(8, 2))
+        datasets.append(Dataset(signatures=centres[labels] + rng.normal(0, noise, size=(32, 2)), labels=labels))
+    model = AppearanceModel.fit(datasets)
+    implied_noise_variance = model.beta / (model.alpha - 1.0)  # prior mean of s2
+    assert np.all(np.abs(np.sqrt(implied_noise_variance) / noise - 1.0) < 0.35)
+    assert np.all(np.abs(model.mu - 0.3) < 0.1)
+
+
+@pytest.mark.parametrize("field, kwargs", [
+    ("kappa", dict(mu=0.0, kappa=0.0, alpha=1.0, beta=1.0)),
+    ("alpha", dict(mu=0.0, kappa=1.0, alpha=-1.0, beta=1.0)),
+    ("beta", dict(mu=0.0, kappa=1.0, alpha=1.0, beta=float("inf"))),
+    ("mu", dict(mu=float("nan"), kappa=1.0, alpha=1.0, beta=1.0)),
+])
+def test_bad_hyperparameters_are_refused(field, kwargs):
+    with pytest.raises(ValueError, match=field):
+        AppearanceModel(**kwargs)
+
+
+def test_hyperparameter_length_must_match_signatures():
+    with pytest.raises(ValueError, match="K=5"):
+        AppearanceModel(0.0, np.ones(3), 1.0, 1.0).bind(Dataset(signatures=np.ones((4, 5))))
+    with pytest.raises(ValueError, match="evidence"):
+        AppearanceModel(0.0, 1.0, 1.0, 1.0, evidence="eq19")

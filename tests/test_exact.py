@@ -1,0 +1,65 @@
+"""Exact enumeration (SPEC §3.5) and the PTM result it returns (SPEC §3.6)."""
+
+import math
+
+import numpy as np
+import pytest
+
+import ptm
+from helpers import appearance_posterior, prior_only_posterior
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 8])
+def test_enumeration_visits_every_partition_once(n):
+    exact = ptm.exact_posterior(prior_only_posterior(n))
+    assert len(exact) == ptm.bell(n)
+    assert len({tuple(row) for row in exact.partitions}) == ptm.bell(n)
+    assert all(ptm.canonical(row) == tuple(row) for row in exact.partitions)
+    assert exact.probabilities.sum() == pytest.approx(1.0)
+
+
+def test_enumeration_agrees_with_scoring_each_partition_from_scratch():
+    posterior = appearance_posterior(n=6)
+    exact = ptm.exact_posterior(posterior)
+    log_probs = np.array([posterior.log_prob(row) for row in exact.partitions])
+    expected = np.exp(log_probs - np.logaddexp.reduce(log_probs))
+    assert np.allclose(exact.probabilities, expected, rtol=1e-9, atol=1e-15)
+
+
+def test_prior_only_posterior_depends_on_the_number_of_places_only():
+    exact = ptm.exact_posterior(prior_only_posterior(5, rate=2.0))
+    prior = ptm.PoissonPrior(2.0)
+    normaliser = 1.0 - math.exp(-2.0)
+    for labels, probability in exact.top(52):
+        assert probability == pytest.approx(math.exp(prior.log_prob(5, max(labels) + 1)) / normaliser)
+
+
+def test_ptm_summaries_on_a_known_distribution():
+    result = ptm.PTM(np.array([[0, 0, 1], [0, 1, 2], [0, 1, 0]]), np.array([0.5, 0.3, 0.2]), "test")
+    assert result.top(2) == [((0, 0, 1), 0.5), ((0, 1, 2), 0.3)]
+    assert result.map() == (0, 0, 1)
+    assert result.probability([7, 7, 3]) == 0.5
+    assert result.probability([0, 0, 0]) == 0.0
+    assert result.rank([4, 5, 4]) == 3 and result.rank([1, 1, 1]) is None
+    coassignment = result.coassignment()
+    assert coassignment[0, 1] == pytest.approx(0.5) and coassignment[0, 2] == pytest.approx(0.2)
+    assert np.allclose(np.diag(coassignment), 1.0)
+    assert result.expected_num_places() == pytest.approx(0.5 * 2 + 0.3 * 3 + 0.2 * 2)
+    assert result.entropy() == pytest.approx(-(0.5 * math.log(0.5) + 0.3 * math.log(0.3) + 0.2 * math.log(0.2)))
+    frame = result.to_frame()
+    assert list(frame.columns) == ["topology", "probability", "num_places"]
+    assert frame["topology"].iloc[0] == "0,0,1"
+
+
+def test_total_variation_of_disjoint_and_equal_ptms():
+    first = ptm.PTM(np.array([[0, 0]]), np.array([1.0]), "test")
+    second = ptm.PTM(np.array([[0, 1]]), np.array([1.0]), "test")
+    assert ptm.total_variation(first, second) == pytest.approx(1.0)
+    assert ptm.total_variation(first, first) == 0.0
+
+
+def test_enumeration_refuses_beyond_the_limit():
+    with pytest.raises(ValueError, match="max_n=12"):
+        ptm.exact_posterior(prior_only_posterior(13))
+    with pytest.raises(ValueError, match="max_n=4"):
+        ptm.exact_posterior(prior_only_posterior(5), max_n=4)

@@ -1,0 +1,50 @@
+"""Partition canonicalisation and the counting numbers behind the proposal."""
+
+import math
+
+import pytest
+
+from ptm.partitions import Partition, bell, canonical, log_stirling2_two, stirling2
+
+# OEIS A000110 and A008277 (rows of S(n, k)).
+BELL = [1, 1, 2, 5, 15, 52, 203, 877, 4140, 21147, 115975, 678570, 4213597]
+STIRLING_ROW_6 = [0, 1, 31, 90, 65, 15, 1]
+
+
+def test_bell_numbers_match_known_values():
+    assert [bell(n) for n in range(13)] == BELL
+
+
+def test_stirling_second_kind_matches_known_values():
+    assert [stirling2(6, k) for k in range(7)] == STIRLING_ROW_6
+    assert sum(stirling2(9, k) for k in range(10)) == bell(9)
+
+
+@pytest.mark.parametrize("n", [2, 3, 10, 40, 200])
+def test_log_stirling_two_is_log_of_two_to_n_minus_one_minus_one(n):
+    assert log_stirling2_two(n) == pytest.approx(math.log(stirling2(n, 2)), rel=1e-12)
+
+
+def test_canonical_form_is_the_restricted_growth_string():
+    assert canonical((5, 2, 5, 7)) == (0, 1, 0, 2)
+    assert canonical([3.0, 3.0, 1.0]) == (0, 0, 1)
+    with pytest.raises(ValueError, match="integers"):
+        canonical([0, 1.5])
+    with pytest.raises(ValueError, match="integers"):
+        canonical(["a", "b"])
+
+
+def test_partition_views_agree():
+    partition = Partition.from_labels([2, 2, 0, 1, 0])
+    assert partition.labels == (0, 0, 1, 2, 1)
+    assert partition.blocks == ((0, 1), (2, 4), (3,))
+    assert (partition.n, partition.m) == (5, 3)
+    assert Partition.from_blocks([(4, 2), (3,), (1, 0)]) == partition
+    assert hash(Partition.from_blocks([(3,), (0, 1), (2, 4)])) == hash(partition)
+
+
+def test_partition_rejects_bad_blocks():
+    with pytest.raises(ValueError, match="disjoint"):
+        Partition.from_blocks([(0, 1), (1, 2)])
+    with pytest.raises(ValueError, match="at least one"):
+        Partition.from_labels([])
