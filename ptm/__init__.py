@@ -15,6 +15,7 @@ from . import features, moves
 from .appearance import AppearanceModel, inverse_gamma_from_mean_variance
 from .dataset import Dataset
 from .exact import exact_posterior
+from .odometry import OdometryModel
 from .partitions import Partition, bell, canonical, stirling2
 from .posterior import Posterior
 from .prior import PoissonPrior
@@ -24,6 +25,6 @@ from .sampler import mcmc
 __all__ = [
     "AppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
     "bell", "canonical", "exact_posterior", "features", "inverse_gamma_from_mean_variance",
-    "mcmc", "moves", "stirling2", "total_variation",
+    "mcmc", "moves", "stirling2", "total_variation", "OdometryModel",
 ]
 __version__ = "0.1.0"

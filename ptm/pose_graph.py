@@ -42,6 +42,7 @@ __all__ = [
     "odometry_sqrt_information",
     "odometry_residuals",
     "odometry_jacobian_blocks",
+    "odometry_second_order_blocks",
     "poses_from_vector",
     "clique_pair_energy",
 ]
@@ -122,6 +123,34 @@ def odometry_jacobian_blocks(poses) -> tuple[np.ndarray, np.ndarray]:
     return wrt_previous, wrt_current
 
 
+def odometry_second_order_blocks(poses, multipliers) -> tuple[np.ndarray, np.ndarray]:
+    """Residual-weighted second derivatives sum_i m_ki d^2 r_ki of each step, shape (N-1, 3, 3) each.
+
+    ``multipliers`` are m_k = Sigma_k^-1 r_k. Only the translation residual
+    (u, v) is non-linear, and only through theta_{k-1}: d^2 u / d theta^2 = -u,
+    d^2 v / d theta^2 = -v, d/d theta of d(u, v)/d t_k = ((-sin, cos), (-cos, -sin)),
+    and the opposite for t_{k-1}. Returns the (p_{k-1}, p_{k-1}) and the
+    (p_{k-1}, p_k) blocks; the (p_k, p_k) block is zero.
+    """
+    previous, current = poses[:-1], poses[1:]
+    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
+    dx = current[:, 0] - previous[:, 0]
+    dy = current[:, 1] - previous[:, 1]
+    u = cos * dx + sin * dy
+    v = -sin * dx + cos * dy
+    m_u, m_v = multipliers[:, 0], multipliers[:, 1]
+    theta_x_current = -m_u * sin - m_v * cos
+    theta_y_current = m_u * cos - m_v * sin
+    wrt_previous = np.zeros((len(previous), 3, 3))
+    wrt_previous[:, 2, 2] = -m_u * u - m_v * v
+    wrt_previous[:, 2, 0] = wrt_previous[:, 0, 2] = -theta_x_current
+    wrt_previous[:, 2, 1] = wrt_previous[:, 1, 2] = -theta_y_current
+    between = np.zeros((len(previous), 3, 3))
+    between[:, 2, 0] = theta_x_current
+    between[:, 2, 1] = theta_y_current
+    return wrt_previous, between
+
+
 def clique_pair_energy(positions, labels, sigma_topology: float) -> np.ndarray:
     """1/2 sum_S sum_{i<j in S} |t_i - t_j|^2 / sigma_T^2 for positions of shape (..., N, 2).
 
@@ -133,10 +162,10 @@ def clique_pair_energy(positions, labels, sigma_topology: float) -> np.ndarray:
     indicator = np.zeros((len(labels), int(labels.max()) + 1))
     indicator[np.arange(len(labels)), labels] = 1.0
     sizes = indicator.sum(axis=0)
-    means = np.einsum("...nc,nm->...mc", positions, indicator) / sizes[:, None]
-    deviations = positions - means[..., labels, :]
-    squared = np.einsum("...nc,...nc->...n", deviations, deviations)
-    return 0.5 * np.einsum("...n,n->...", squared, sizes[labels]) / sigma_topology**2
+    means = (np.swapaxes(positions, -1, -2) @ (indicator / sizes))[..., labels]  # (..., 2, N)
+    deviations = np.swapaxes(positions, -1, -2) - means
+    squared = deviations[..., 0, :] ** 2 + deviations[..., 1, :] ** 2
+    return 0.5 * (squared @ sizes[labels]) / sigma_topology**2
 
 
 @dataclass(frozen=True)
@@ -148,6 +177,19 @@ class LaplaceFit:
     factor: "DenseFactor | SparseFactor"  # of the Gauss-Newton Hessian at P*
     iterations: int
     converged: bool
+
+
+@dataclass(frozen=True)
+class _TopologyHessian:
+    """COO entries of (clique Laplacian of T) / sigma_T^2 on the free x and y coordinates (no duplicates)."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    values: np.ndarray
+    diagonal: np.ndarray  # (d,)
+
+    def __matmul__(self, vector) -> np.ndarray:
+        return np.bincount(self.rows, weights=self.values * vector[self.cols], minlength=len(vector))
 
 
 class PoseGraph:
@@ -163,20 +205,31 @@ class PoseGraph:
         Standard deviation [m] tying the positions of detections of the same place.
     sparse_above : int
         Use sparse linear algebra when d = 3(N-1) exceeds this.
+    max_iterations : int
+        Iteration limit of one fit.
+    step_tolerance : float
+        Converged when the Gauss-Newton step is below this in every coordinate.
+    close_tolerance : float
+        Newton steps below this trigger the convergence test.
     """
 
     def __init__(self, odometry, sqrt_information, sigma_topology: float,
                  sparse_above: int = SPARSE_ABOVE_DIMENSION, max_iterations: int = 100,
-                 step_tolerance: float = 1e-10):
+                 step_tolerance: float = 1e-7, close_tolerance: float = 1e-4):
         self.odometry = np.asarray(odometry, dtype=float)
         self.sqrt_information = np.asarray(sqrt_information, dtype=float)
+        self.information = np.swapaxes(self.sqrt_information, 1, 2) @ self.sqrt_information
         self.sigma_topology = float(sigma_topology)
         self.n = len(self.odometry) + 1
         self.dimension = 3 * (self.n - 1)
         self.sparse = self.dimension > sparse_above
         self.max_iterations = int(max_iterations)
         self.step_tolerance = float(step_tolerance)
+        self.close_tolerance = float(close_tolerance)
         self._block_rows, self._block_cols = _tridiagonal_block_indices(self.n - 1)
+        # Newton systems are assembled and factorised in place here: a fresh d x d array per
+        # iteration costs page faults comparable to the Cholesky factorisation itself.
+        self._workspace = None if self.sparse else np.empty((self.dimension, self.dimension))
 
     def dead_reckoning(self) -> np.ndarray:
         """The state that composes the odometry rows exactly (zero odometry energy)."""
@@ -190,84 +243,128 @@ class PoseGraph:
     def energy(self, states, labels) -> np.ndarray:
         """E of each state in ``states`` (shape (..., d)) under the partition ``labels``."""
         poses = poses_from_vector(states)
-        whitened = np.einsum("kij,...kj->...ki", self.sqrt_information, odometry_residuals(poses, self.odometry))
-        odometry_energy = 0.5 * np.einsum("...ki,...ki->...", whitened, whitened)
+        residuals = odometry_residuals(poses, self.odometry)
+        weighted = (residuals[..., 0, None] * self.information[:, 0]
+                    + residuals[..., 1, None] * self.information[:, 1]
+                    + residuals[..., 2, None] * self.information[:, 2])  # Sigma_k^-1 r_k
+        odometry_energy = 0.5 * np.sum(weighted * residuals, axis=(-2, -1))
         return odometry_energy + clique_pair_energy(poses[..., :2], labels, self.sigma_topology)
 
     def fit(self, start, labels) -> LaplaceFit:
-        """Minimise E from ``start`` by damped Gauss-Newton; factorise the Hessian at the minimum.
+        """Minimise E from ``start``; factorise the Gauss-Newton Hessian at the minimum.
 
-        Converged means the undamped Gauss-Newton step is below ``step_tolerance``
-        in every coordinate, or its predicted decrease is below rounding of E.
-        A fit that runs out of iterations is returned with ``converged=False``
-        (its Hessian is still positive definite, so it still defines a valid
-        importance-sampling proposal); the caller records it.
+        Steps are Newton steps on the exact Hessian (Gauss-Newton plus the
+        residual-weighted second derivatives of the rotation), damped
+        Levenberg-Marquardt style (lambda * diag of the Gauss-Newton Hessian)
+        whenever the exact Hessian is indefinite or a step raises E: plain
+        Gauss-Newton converges only linearly on the large residuals of an
+        implausible topology, and samplers propose many of those. Once a
+        Newton step is below ``close_tolerance`` the Gauss-Newton Hessian -- the
+        one SPEC §3.3 defines the Laplace proposal with -- is factorised; the
+        fit is converged when its step is below ``step_tolerance`` in every
+        coordinate (or its predicted decrease is below rounding of E). A fit
+        that runs out of iterations is returned with ``converged=False``: its
+        Hessian is still positive definite, so it still defines a valid
+        importance-sampling proposal, and the caller records the failure.
         """
         labels = np.asarray(labels)
-        topology_rows, topology_cols, topology_values = self._topology_hessian_entries(labels)
+        topology = self._topology_hessian(labels)
         x = np.array(start, dtype=float)
         energy = float(self.energy(x, labels))
         damping = 0.0
+        close = False
         for iteration in range(1, self.max_iterations + 1):
-            hessian, gradient = self._linearise(x, topology_rows, topology_cols, topology_values)
-            while True:
-                factor = self._factorise(hessian, damping)
+            gradient, gauss_newton, second_order = self._linearise(x, topology)
+            if close:
+                factor = self._factorised_hessian(topology, gauss_newton)
                 step = -factor.solve(gradient)
-                predicted_decrease = -0.5 * float(gradient @ step)
-                at_minimum = np.max(np.abs(step)) < self.step_tolerance or predicted_decrease < 1e-15 * (1.0 + energy)
-                if damping == 0.0 and at_minimum:
+                if self._negligible(step, gradient, energy):
                     return LaplaceFit(x, energy, factor, iteration, True)
+            exact = gauss_newton + second_order
+            damping_scale = np.diagonal(gauss_newton[: self.n - 1], axis1=1, axis2=2).ravel() + topology.diagonal
+            while True:
+                try:
+                    factor = self._factorised_hessian(topology, exact, damping * damping_scale, in_workspace=True)
+                except ValueError:  # indefinite: damp towards gradient descent
+                    damping = max(1e-4, 10.0 * damping)
+                    continue
+                step = -factor.solve(gradient)
                 candidate = x + step
                 candidate_energy = float(self.energy(candidate, labels))
-                if candidate_energy <= energy:
-                    x, energy = candidate, candidate_energy
+                if candidate_energy <= energy or self._negligible(step, gradient, energy):
+                    close = np.max(np.abs(step)) < self.close_tolerance
+                    x, energy = candidate, min(candidate_energy, energy)
                     damping = damping / 10.0 if damping > 1e-7 else 0.0
                     break
-                if at_minimum:  # damped step too small to matter: retry undamped at this point
-                    damping = 0.0
-                    break
-                damping = max(1e-6, 10.0 * damping)
-        hessian, _ = self._linearise(x, topology_rows, topology_cols, topology_values)
-        return LaplaceFit(x, energy, self._factorise(hessian, 0.0), self.max_iterations, False)
+                damping = max(1e-4, 10.0 * damping)
+        _, gauss_newton, _ = self._linearise(x, topology)
+        return LaplaceFit(x, energy, self._factorised_hessian(topology, gauss_newton), self.max_iterations, False)
+
+    def _negligible(self, step, gradient, energy) -> bool:
+        predicted_decrease = -0.5 * float(gradient @ step)
+        return np.max(np.abs(step)) < self.step_tolerance or predicted_decrease < 1e-15 * (1.0 + abs(energy))
 
     # -- linear algebra ---------------------------------------------------------------------------
 
-    def _linearise(self, x, topology_rows, topology_cols, topology_values):
-        """Gauss-Newton Hessian and gradient of E at ``x``."""
+    def _linearise(self, x, topology: _TopologyHessian):
+        """Gradient of E at ``x`` and the Gauss-Newton and second-order Hessian blocks of the odometry term.
+
+        Blocks come as one array of shape (2N-3, 3, 3): the N-1 diagonal blocks
+        of poses 1..N-1, then the N-2 blocks (pose k-1, pose k) above the diagonal.
+        """
         poses = poses_from_vector(x)
+        steps = self.n - 1
         residuals = odometry_residuals(poses, self.odometry)
-        whitened = np.einsum("kij,kj->ki", self.sqrt_information, residuals)
+        multipliers = np.einsum("kij,kj->ki", self.information, residuals)  # Sigma_k^-1 r_k
         wrt_previous, wrt_current = odometry_jacobian_blocks(poses)
-        jac_previous = self.sqrt_information @ wrt_previous
-        jac_current = self.sqrt_information @ wrt_current
-        gradient_blocks = np.einsum("kji,kj->ki", jac_current, whitened)
-        gradient_blocks[:-1] += np.einsum("kji,kj->ki", jac_previous[1:], whitened[1:])
-        gradient = gradient_blocks.ravel()
-        gradient += _sparse_matvec(topology_rows, topology_cols, topology_values, x)
-        diagonal = np.einsum("kji,kjl->kil", jac_current, jac_current)
-        diagonal[:-1] += np.einsum("kji,kjl->kil", jac_previous[1:], jac_previous[1:])
-        off_diagonal = np.einsum("kji,kjl->kil", jac_previous[1:], jac_current[1:])  # (pose k-1, pose k)
-        block_values = np.concatenate(
-            [diagonal.ravel(), off_diagonal.ravel(), np.swapaxes(off_diagonal, 1, 2).ravel()]
-        )
-        rows = np.concatenate([self._block_rows, topology_rows])
-        cols = np.concatenate([self._block_cols, topology_cols])
-        values = np.concatenate([block_values, topology_values])
+        transposed_previous = np.swapaxes(wrt_previous, 1, 2)
+        information_current = self.information @ wrt_current
+        gradient_blocks = np.einsum("kji,kj->ki", wrt_current, multipliers)
+        gradient_blocks[:-1] += np.einsum("kji,kj->ki", wrt_previous[1:], multipliers[1:])
+        gradient = gradient_blocks.ravel() + topology @ x
+
+        gauss_newton = np.empty((2 * steps - 1, 3, 3))
+        np.matmul(np.swapaxes(wrt_current, 1, 2), information_current, out=gauss_newton[:steps])
+        gauss_newton[: steps - 1] += transposed_previous[1:] @ (self.information[1:] @ wrt_previous[1:])
+        np.matmul(transposed_previous[1:], information_current[1:], out=gauss_newton[steps:])
+
+        second_previous, second_between = odometry_second_order_blocks(poses, multipliers)
+        second_order = np.zeros_like(gauss_newton)
+        second_order[: steps - 1] = second_previous[1:]
+        second_order[steps:] = second_between[1:]
+        return gradient, gauss_newton, second_order
+
+    def _factorised_hessian(self, topology: _TopologyHessian, blocks, added_diagonal=None, in_workspace=False):
+        """Factorise topology Laplacian + the block-tridiagonal odometry part (+ a diagonal).
+
+        ``in_workspace`` assembles a dense matrix in the reused workspace (for
+        factors that are not kept beyond the next assembly).
+        """
+        poses = self.n - 1
+        diagonal, above = blocks[:poses], blocks[poses:]
+        shape = (self.dimension, self.dimension)
         if self.sparse:
-            hessian = scipy.sparse.csc_matrix((values, (rows, cols)), shape=(self.dimension,) * 2)
-        else:
-            flat = np.bincount(rows * self.dimension + cols, weights=values, minlength=self.dimension**2)
-            hessian = flat.reshape(self.dimension, self.dimension)
-        return hessian, gradient
+            values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(),
+                                     topology.values])
+            rows = np.concatenate([self._block_rows, topology.rows])
+            cols = np.concatenate([self._block_cols, topology.cols])
+            matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=shape)
+            if added_diagonal is not None:
+                matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
+            return SparseFactor(matrix)
+        matrix = self._workspace if in_workspace else np.empty(shape)
+        matrix.fill(0.0)
+        matrix[topology.rows, topology.cols] = topology.values
+        grid = matrix.reshape(poses, 3, poses, 3)
+        index = np.arange(poses)
+        grid[index, :, index, :] += diagonal
+        grid[index[:-1], :, index[1:], :] += above
+        grid[index[1:], :, index[:-1], :] += np.swapaxes(above, 1, 2)
+        if added_diagonal is not None:
+            matrix.flat[:: self.dimension + 1] += added_diagonal
+        return DenseFactor(matrix, overwrite=True)
 
-    def _factorise(self, hessian, damping: float):
-        if damping:
-            diagonal = hessian.diagonal()
-            hessian = hessian + (scipy.sparse.diags(damping * diagonal) if self.sparse else np.diag(damping * diagonal))
-        return SparseFactor(hessian) if self.sparse else DenseFactor(hessian)
-
-    def _topology_hessian_entries(self, labels):
-        """COO entries of (clique Laplacian of T) / sigma_T^2 on the free x and y coordinates."""
+    def _topology_hessian(self, labels) -> _TopologyHessian:
         rows, cols, values = [], [], []
         weight = 1.0 / self.sigma_topology**2
         order = np.argsort(labels, kind="stable")
@@ -285,16 +382,23 @@ class PoseGraph:
                 cols.append(3 * block_cols + axis)
                 values.append(block.ravel())
         if not rows:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-        return np.concatenate(rows), np.concatenate(cols), np.concatenate(values)
+            empty = np.zeros(0, dtype=np.intp)
+            return _TopologyHessian(empty, empty, np.zeros(0), np.zeros(self.dimension))
+        rows, cols, values = np.concatenate(rows), np.concatenate(cols), np.concatenate(values)
+        on_diagonal = rows == cols
+        diagonal = np.zeros(self.dimension)
+        diagonal[rows[on_diagonal]] = values[on_diagonal]
+        return _TopologyHessian(rows, cols, values, diagonal)
 
 
 class DenseFactor:
-    """Cholesky H = L L^T of a dense symmetric positive-definite matrix."""
+    """Cholesky H = L L^T of a dense symmetric positive-definite matrix (``overwrite``: in its memory)."""
 
-    def __init__(self, matrix):
+    def __init__(self, matrix, overwrite: bool = False):
         try:
-            self.lower = scipy.linalg.cholesky(matrix, lower=True, check_finite=False)
+            # The transpose of a C-ordered symmetric matrix is the same matrix in Fortran order,
+            # which LAPACK can factorise without a copy.
+            self.lower = scipy.linalg.cholesky(matrix.T, lower=True, overwrite_a=overwrite, check_finite=False)
         except np.linalg.LinAlgError:
             raise ValueError("the pose-graph Hessian is not positive definite") from None
 
@@ -358,5 +462,3 @@ def _tridiagonal_block_indices(poses: int) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate([diagonal[1], upper[1], lower[1]]))
 
 
-def _sparse_matvec(rows, cols, values, vector) -> np.ndarray:
-    return np.bincount(rows, weights=values * vector[cols], minlength=len(vector))
