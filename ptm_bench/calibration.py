@@ -29,13 +29,14 @@ __all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius"]
 
 def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
     """The labelled datasets of the cell's condition at its calibration seeds (never its scored seed)."""
-    seeds = cell["calibration_seeds"]
+    inputs = cell["inputs"]
+    seeds = inputs["calibration_seeds"]
     if cell["seed"] in seeds:
         raise ValueError(f"seed {cell['seed']} is both scored and a calibration seed")
     components = cell["settings"]["appearance"]["components"]
     return [
-        dataset_for(cell["world_spec"], cell["aliasing"], cell["noise"], seed, cell["generator_options"],
-                    cell["cache_dir"], components)
+        dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], seed, inputs["generator_options"],
+                    inputs["cache_dir"], components)
         for seed in seeds
     ]
 

@@ -43,9 +43,9 @@ TRACE_POINTS = 200
 def run_cell(cell: dict) -> dict:
     """Generate (or load) the cell's dataset, run its variant or baseline, and score it."""
     started = time.perf_counter()
-    settings = cell["settings"]
-    dataset = dataset_for(cell["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
-                          cell["generator_options"], cell["cache_dir"], settings["appearance"]["components"])
+    settings, inputs = cell["settings"], cell["inputs"]
+    dataset = dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
+                          inputs["generator_options"], inputs["cache_dir"], settings["appearance"]["components"])
     if dataset.labels is None:
         raise ValueError(f"dataset of {cell['cell_id']} has no ground-truth labels to score against")
     inference_started = time.perf_counter()

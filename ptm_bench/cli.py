@@ -16,7 +16,10 @@ import sys
 # Modules that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
     "ptm_bench.demo",
+    "ptm_bench.run_cli",
     "ptm_bench.speed",
+    "ptm_bench.worlds_cli",
+    "ptm_bench.generate",
 )
 
 

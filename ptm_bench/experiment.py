@@ -178,7 +178,8 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
             "noise": noise,
             "seed": seed,
         }
-        shared = {
+        # Nested, so not table columns: what the cell needs to make its dataset and calibrate.
+        inputs = {
             "world_spec": world,
             "calibration_seeds": list(sweep["calibration_seeds"]),
             "generator_options": sweep["generator_options"],
@@ -189,7 +190,7 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
         for variant_name, models, method, settings in runs:
             cell_id = f"{condition['world']}|a={aliasing:g}|noise={noise:g}|seed={seed}|{variant_name}"
             cells.append({"cell_id": cell_id, **condition, "variant": variant_name, "models": models,
-                          "method": method, "settings": settings, **shared})
+                          "method": method, "settings": settings, "inputs": inputs})
     return cells
 
 

@@ -49,6 +49,7 @@ __all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep"]
 TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|attempts)$")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
+_BOOKKEEPING_COLUMNS = ("status", "error", "attempts")  # written last, after the cell's values and results
 
 CellFn = Callable[[dict], dict]
 
@@ -134,6 +135,8 @@ def _write_table(path: Path, rows: dict[str, dict], order: dict[str, int]) -> No
     # Cells of this sweep in their list order; rows of cells no longer listed are kept, after them.
     ordered = sorted(rows.items(), key=lambda item: (order.get(item[0], len(order)), item[0]))
     table = pd.DataFrame([row for _, row in ordered])
+    bookkeeping = [column for column in _BOOKKEEPING_COLUMNS if column in table.columns]
+    table = table[[column for column in table.columns if column not in bookkeeping] + bookkeeping]
     atomic_write(path, lambda handle: handle.write(table.to_csv(index=False).encode()))
 
 

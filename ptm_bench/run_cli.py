@@ -1,0 +1,49 @@
+"""``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures (SPEC §6).
+
+Cells already in ``results/NAME/cells.csv`` are skipped, so an interrupted run
+resumes where it stopped. Cells run in local processes by default, or on a
+Dask distributed cluster with ``--scheduler ADDRESS`` (``pip install 'ptm[dask]'``).
+
+    $ ptm-bench run experiments/exp3_nested.toml
+    $ ptm-bench run experiments/grid.toml --workers 2 --retry-failed
+    $ ptm-bench run experiments/grid.toml --scheduler tcp://scheduler:8786
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .cell import run_cell
+from .experiment import describe, expand_cells, load_experiment
+from .summary import aggregate, markdown_table, write_summary
+from .sweep import run_sweep
+
+SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("run", help="run an experiment config (a resumable sweep) and write its summary")
+    parser.add_argument("config", type=Path, help="an experiment config, e.g. experiments/exp3_nested.toml")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results folder (default: results)")
+    parser.add_argument("--workers", type=int, default=None, help="local processes (default: number of CPUs)")
+    parser.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, instead of local processes")
+    parser.add_argument("--retry-failed", action="store_true", help="rerun cells that ended in an error")
+    parser.add_argument("--no-figures", action="store_true", help="write summary.md without drawing figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    experiment = load_experiment(args.config)
+    results_dir = args.out / experiment.name
+    cells = expand_cells(experiment, results_dir)
+    print(describe(experiment))
+    table = run_sweep(cells, run_cell, results_dir / "cells.csv", workers=args.workers, scheduler=args.scheduler,
+                      retry_failed=args.retry_failed, progress=not args.no_progress)
+    summary_path = write_summary(experiment, table, results_dir, figures=not args.no_figures)
+    summary = aggregate(table)
+    if len(summary):
+        print(markdown_table(summary[SHOWN_COLUMNS]))
+    failed = int((table["status"] != "ok").sum())
+    print(f"\n{len(table) - failed} cells finished, {failed} failed; table {results_dir / 'cells.csv'}, summary {summary_path}")
+    return 0 if failed == 0 else 1
