@@ -58,8 +58,9 @@ class Palette:
     """The look of a place: RGB colours of the walls in four compass sectors and of its floor marker.
 
     Sector j covers bearings [90j - 45, 90j + 45) degrees seen from the place,
-    in the world frame, so the pattern is a property of the place, not of the
-    robot's heading.
+    measured from the place's frame (``Floorplan.place_frame``, fixed by the
+    corridor layout), so the pattern is a property of the place, not of the
+    robot's heading, and congruent places with one palette look alike.
     """
 
     sectors: tuple[tuple[float, float, float], ...]
@@ -106,6 +107,44 @@ class Floorplan:
         """Length of a route's polyline [m]."""
         points = self.route_points(route)
         return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+    def openings(self, point) -> list[float]:
+        """Directions [rad] in which corridors leave ``point`` (both ways inside a corridor, outwards at a node)."""
+        p = np.asarray(point, dtype=float)
+        directions = []
+        for corridor in self.corridors:
+            a, b = np.asarray(self.nodes[corridor.start]), np.asarray(self.nodes[corridor.end])
+            length = float(np.linalg.norm(b - a))
+            axis = (b - a) / length
+            along = float((p - a) @ axis)
+            across = float((p - a) @ np.array([-axis[1], axis[0]]))
+            half = corridor.width / 2
+            if abs(across) > half or not -half <= along <= length + half:
+                continue
+            heading = math.atan2(axis[1], axis[0])
+            if along < length - half:
+                directions.append(heading)
+            if along > half:
+                directions.append(heading + math.pi)
+        return sorted(math.remainder(d, 2 * math.pi) for d in directions)
+
+    def place_frame(self, place_id: int) -> float:
+        """Orientation [rad] of a place's palette frame, fixed by its corridor layout.
+
+        Among the corridor openings at the place, the one from which the other
+        openings look the same for congruent layouts is chosen (the rotation
+        giving the lexicographically smallest sorted list of relative
+        directions), so two places with the same layout and the same palette
+        look alike up to a rotation of the robot -- which is what aliasing means.
+        """
+        openings = self.openings(self.places[place_id])
+        if not openings:
+            return 0.0
+
+        def relative(reference):
+            return tuple(sorted(round(math.degrees((d - reference) % (2 * math.pi)), 3) % 360 for d in openings))
+
+        return min(openings, key=lambda reference: (relative(reference), reference))
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the free space, walls excluded."""
@@ -373,7 +412,7 @@ def palette_count(n_places: int, aliasing: float) -> int:
         raise ValueError(f"aliasing must be a number in [0, 1], got {aliasing!r}")
     if n_places < 1:
         raise ValueError(f"n_places must be >= 1, got {n_places}")
-    return max(1, int(round(1 + (1 - aliasing) * (n_places - 1))))
+    return max(1, math.floor(1 + (1 - aliasing) * (n_places - 1) + 0.5))  # round half up, not to even
 
 
 def palette_library(count: int, rng: np.random.Generator, given=()) -> tuple[Palette, ...]:

@@ -43,7 +43,7 @@ from .scene import build_mjcf, compile_scene, place_sites
 
 import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
-__all__ = ["GENERATOR_VERSION", "generate_dataset", "register"]
+__all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "register", "true_odometry"]
 
 GENERATOR_VERSION = "ptm_bench.generate/1"
 
@@ -103,9 +103,7 @@ def generate_dataset(
         np.random.default_rng(child) for child in np.random.SeedSequence(int(seed)).spawn(4)
     )
 
-    palette_of_place = assign_palettes(floor, aliasing, world_stream)
-    palettes = palette_library(max(palette_of_place.values()) + 1, world_stream, floor.palettes)
-    model = compile_scene(build_mjcf(floor, {p: palettes[i] for p, i in palette_of_place.items()}, rig, cell_size))
+    model, palette_of_place, palettes = build_world(floor, aliasing, world_stream, rig, cell_size)
     places = place_sites(model)  # ground truth comes from the element names
 
     waypoints = _jittered_waypoints(floor, route, appearance_stream)
@@ -182,6 +180,15 @@ def generate_dataset(
     if progress:
         print(f"generated {floor.name} in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     return dataset
+
+
+def build_world(floor: Floorplan, aliasing: float, rng: np.random.Generator, rig: RigConfig = RigConfig(),
+                cell_size: float = 0.25):
+    """The compiled MuJoCo model of ``floor`` at an aliasing level: (model, palette_of_place, palettes)."""
+    palette_of_place = assign_palettes(floor, aliasing, rng)
+    palettes = palette_library(max(palette_of_place.values()) + 1, rng, floor.palettes)
+    model = compile_scene(build_mjcf(floor, {p: palettes[i] for p, i in palette_of_place.items()}, rig, cell_size))
+    return model, palette_of_place, palettes
 
 
 def _jittered_waypoints(floor: Floorplan, route: str, rng: np.random.Generator) -> np.ndarray:

@@ -6,7 +6,7 @@ Like dm_control's mazes, the abstract layout is rasterised onto a grid
 and a wall if it is not free but touches a free cell. Runs of wall cells with
 the same look are merged into boxes. Wall cells within ``zone_radius`` of a
 place take the colour of that place's palette sector (the bearing from the
-place, in four 90-degree sectors) and are named ``place_<id>_wall_<k>``; all
+place relative to its layout frame, in four 90-degree sectors) and are named ``place_<id>_wall_<k>``; all
 other walls are ``wall_<k>``. Each place also gets a floor marker
 ``place_<id>_marker`` and an invisible site ``place_<id>_site`` whose name is
 where ground-truth labels are read from. The base and cameras ``cam_0``..``cam_7``
@@ -175,7 +175,7 @@ def _wall_looks(floor: Floorplan, origin, wall, cell_size) -> tuple[np.ndarray, 
         claim = wall & (distance <= floor.zone_radius) & (distance < nearest)
         nearest = np.where(claim, distance, nearest)
         owner = np.where(claim, place_id, owner)
-        bearing = np.arctan2(y - py, x - px)
+        bearing = np.arctan2(y - py, x - px) - floor.place_frame(place_id)
         place_sector = np.floor((bearing + math.pi / SECTOR_COUNT) / (2 * math.pi / SECTOR_COUNT)).astype(int) % SECTOR_COUNT
         sector = np.where(claim, place_sector, sector)
     return owner, sector
