@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +33,9 @@ from .moves import (GibbsReassign, SplitMerge, apply_proposal, initial_state, pr
 from .partitions import Partition
 from .result import PTM
 
-__all__ = ["mcmc", "default_moves"]
+__all__ = ["mcmc", "default_moves", "metropolis_step", "StepInfo", "MoveMixture", "SampleRecorder"]
+
+_SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 
 
 def default_moves():
@@ -67,113 +70,135 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     burn_in = _count("burn_in", burn_in, minimum=0)
     thin = _count("thin", thin, minimum=1)
     chains = _count("chains", chains, minimum=1)
-    move_list, weights = _weighted_moves(moves if moves is not None else default_moves())
+    mixture = MoveMixture(moves if moves is not None else default_moves())
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    chain_seeds = root.spawn(chains)
-
+    recorder = SampleRecorder(chains, n_samples)
     started = time.perf_counter()
-    counts: dict[Partition, int] = {}
-    log_prob_trace = np.empty((chains, n_samples))
-    places_trace = np.empty((chains, n_samples), dtype=np.int32)
-    proposed = np.zeros(len(move_list), dtype=np.int64)
-    accepted = np.zeros(len(move_list), dtype=np.int64)
-    screened_out = 0
-    global_evaluations = 0
-    for chain, chain_seed in enumerate(chain_seeds):
+    for chain, chain_seed in enumerate(root.spawn(chains)):
         rng = np.random.default_rng(chain_seed)
-        start_labels = _start_labels(posterior, init, chain, rng)
-        stats = _run_chain(posterior, initial_state(posterior, start_labels), rng, move_list, weights,
-                           n_samples, burn_in, thin, delayed_acceptance, counts,
-                           log_prob_trace[chain], places_trace[chain])
-        proposed += stats["proposed"]
-        accepted += stats["accepted"]
-        screened_out += stats["screened_out"]
-        global_evaluations += stats["global_evaluations"]
+        state = initial_state(posterior, _start_labels(posterior, init, chain, rng))
+        for step in range(burn_in + n_samples * thin):
+            state, _ = mixture.step(posterior, state, rng, delayed_acceptance=delayed_acceptance)
+            kept, remainder = divmod(step - burn_in + 1, thin)
+            if step >= burn_in and remainder == 0:
+                recorder.keep(chain, kept - 1, state)
+        recorder.flush()
     wall = time.perf_counter() - started
-
-    partitions = np.array([partition.labels for partition in counts], dtype=np.int32)
-    frequencies = np.array(list(counts.values()), dtype=float)
     steps = chains * (burn_in + n_samples * thin)
-    diagnostics = {
-        "chains": chains,
-        "steps": steps,
-        "samples": chains * n_samples,
-        "acceptance_rate": float(accepted.sum() / max(proposed.sum(), 1)),
-        "acceptance_by_move": {getattr(move, "name", type(move).__name__): float(a / max(p, 1))
-                               for move, a, p in zip(move_list, accepted, proposed)},
-        "n_distinct": len(counts),
-        "wall_s": wall,
-        "steps_per_s": steps / wall if wall > 0 else float("inf"),
-        "global_evaluations": global_evaluations,
-        "screened_out": screened_out,
-    }
-    if chains > 1 and n_samples >= 4:
-        for name, trace in (("log_prob", log_prob_trace), ("num_places", places_trace)):
-            diagnostics[f"rhat_{name}"] = split_rhat(trace)
-            diagnostics[f"ess_{name}"] = effective_sample_size(trace)
+    diagnostics = {"chains": chains, "steps": steps, "samples": chains * n_samples, "wall_s": wall,
+                   "steps_per_s": steps / wall if wall > 0 else float("inf"), **mixture.diagnostics()}
     diagnostics.update(posterior.diagnostics())
-    return PTM(partitions, frequencies, "mcmc", diagnostics,
-               traces={"log_prob": log_prob_trace, "num_places": places_trace})
+    return recorder.result("mcmc", diagnostics)
 
 
-def _run_chain(posterior, state, rng, move_list, weights, n_samples, burn_in, thin,
-               delayed_acceptance, counts, log_prob_trace, places_trace) -> dict:
-    """Advance one chain, adding its kept samples to ``counts`` and the traces."""
-    cumulative = np.cumsum(weights)
-    cumulative /= cumulative[-1]
-    single_move = len(move_list) == 1
-    has_global = posterior.has_global_terms
-    two_stage = delayed_acceptance and has_global
-    proposed = np.zeros(len(move_list), dtype=np.int64)
-    accepted = np.zeros(len(move_list), dtype=np.int64)
-    screened_out = 0
-    global_evaluations = 0
+@dataclass(frozen=True)
+class StepInfo:
+    """What one Metropolis-Hastings step did (kept apart from the chain state)."""
 
-    total_steps = burn_in + n_samples * thin
-    run_length = 0  # consecutive kept samples at the current state, flushed on change
-    kept = 0
-    for step in range(total_steps):
-        which = 0 if single_move else int(np.searchsorted(cumulative, rng.random(), side="right"))
-        proposal = move_list[which].propose(rng, state, posterior)
-        proposed[which] += 1
-        if proposal is not None:
-            log_cheap, added_scores = proposed_log_cheap(posterior, state, proposal)
-            log_ratio = log_cheap - state.log_cheap + proposal.log_q_ratio
-            log_uniform = math.log(rng.random() or 5e-324)
-            partition = None
-            log_global = 0.0
-            if two_stage:
-                if log_uniform >= log_ratio:
-                    screened_out += 1
-                    log_ratio = -math.inf
-                else:
-                    partition = proposed_partition(state, proposal)
-                    log_global = posterior.global_log_prob(partition)
-                    global_evaluations += 1
-                    log_ratio = log_global - state.log_global
-                    log_uniform = math.log(rng.random() or 5e-324)
-            elif has_global:
-                partition = proposed_partition(state, proposal)
-                log_global = posterior.global_log_prob(partition)
-                global_evaluations += 1
-                log_ratio += log_global - state.log_global
-            if log_uniform < log_ratio:
-                if partition is None:
-                    partition = proposed_partition(state, proposal)
-                if run_length:
-                    counts[state.partition] = counts.get(state.partition, 0) + run_length
-                    run_length = 0
-                state = apply_proposal(state, proposal, partition, added_scores, log_cheap, log_global)
-                accepted[which] += 1
-        if step >= burn_in and (step - burn_in) % thin == thin - 1:
-            log_prob_trace[kept] = state.log_prob
-            places_trace[kept] = len(state.blocks)
-            kept += 1
-            run_length += 1
-    if run_length:
-        counts[state.partition] = counts.get(state.partition, 0) + run_length
-    return {"proposed": proposed, "accepted": accepted, "screened_out": screened_out,
-            "global_evaluations": global_evaluations}
+    proposed: bool          # the move proposed a different partition
+    accepted: bool
+    screened_out: bool      # rejected by the cheap first stage of delayed acceptance
+    global_evaluated: bool  # the global (odometry) terms were evaluated
+
+
+_NOTHING_PROPOSED = StepInfo(False, False, False, False)
+
+
+def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.0,
+                    delayed_acceptance: bool = False):
+    """One MH step targeting P(T|Z)^inverse_temperature; returns (state, StepInfo)."""
+    proposal = move.propose(rng, state, posterior)
+    if proposal is None:
+        return state, _NOTHING_PROPOSED
+    log_cheap, added_scores = proposed_log_cheap(posterior, state, proposal)
+    log_ratio = inverse_temperature * (log_cheap - state.log_cheap) + proposal.log_q_ratio
+    log_uniform = math.log(rng.random() or _SMALLEST)
+    partition = None
+    log_global = 0.0
+    if posterior.has_global_terms:
+        if delayed_acceptance:
+            if log_uniform >= log_ratio:
+                return state, StepInfo(True, False, True, False)
+            log_ratio = 0.0  # stage two: min(1, exp(beta * (global(T') - global(T))))
+            log_uniform = math.log(rng.random() or _SMALLEST)
+        partition = proposed_partition(state, proposal)
+        log_global = posterior.global_log_prob(partition)
+        log_ratio += inverse_temperature * (log_global - state.log_global)
+    evaluated = partition is not None
+    if not log_uniform < log_ratio:
+        return state, StepInfo(True, False, False, evaluated)
+    if partition is None:
+        partition = proposed_partition(state, proposal)
+    return (apply_proposal(state, proposal, partition, added_scores, log_cheap, log_global),
+            StepInfo(True, True, False, evaluated))
+
+
+class MoveMixture:
+    """Draws one move per step from a weighted list and tallies what each move did."""
+
+    def __init__(self, moves):
+        self.moves, weights = _weighted_moves(moves)
+        self._cumulative = np.cumsum(weights) / np.sum(weights)
+        self.proposed = np.zeros(len(self.moves), dtype=np.int64)
+        self.accepted = np.zeros(len(self.moves), dtype=np.int64)
+        self.screened_out = 0
+        self.global_evaluations = 0
+
+    def step(self, posterior, state, rng, inverse_temperature=1.0, delayed_acceptance=False):
+        which = 0 if len(self.moves) == 1 else int(np.searchsorted(self._cumulative, rng.random(), side="right"))
+        state, info = metropolis_step(posterior, state, rng, self.moves[which], inverse_temperature,
+                                      delayed_acceptance)
+        self.proposed[which] += 1
+        self.accepted[which] += info.accepted
+        self.screened_out += info.screened_out
+        self.global_evaluations += info.global_evaluated
+        return state, info
+
+    def diagnostics(self) -> dict:
+        return {
+            "acceptance_rate": float(self.accepted.sum() / max(self.proposed.sum(), 1)),
+            "acceptance_by_move": {getattr(move, "name", type(move).__name__): float(a / max(p, 1))
+                                   for move, a, p in zip(self.moves, self.accepted, self.proposed)},
+            "global_evaluations": int(self.global_evaluations),
+            "screened_out": int(self.screened_out),
+        }
+
+
+class SampleRecorder:
+    """Pools kept samples into a histogram (run-length counted) and per-chain traces."""
+
+    def __init__(self, chains: int, n_samples: int):
+        self.counts: dict[Partition, int] = {}
+        self.log_prob = np.empty((chains, n_samples))
+        self.num_places = np.empty((chains, n_samples), dtype=np.int32)
+        self._current = None
+        self._run_length = 0
+
+    def keep(self, chain: int, index: int, state) -> None:
+        self.log_prob[chain, index] = state.log_prob
+        self.num_places[chain, index] = len(state.blocks)
+        if state.partition is not self._current:
+            self.flush()
+            self._current = state.partition
+        self._run_length += 1
+
+    def flush(self) -> None:
+        if self._run_length:
+            self.counts[self._current] = self.counts.get(self._current, 0) + self._run_length
+        self._current, self._run_length = None, 0
+
+    def result(self, method: str, diagnostics: dict) -> PTM:
+        self.flush()
+        chains, n_samples = self.log_prob.shape
+        if chains > 1 and n_samples >= 4:
+            for name, trace in (("log_prob", self.log_prob), ("num_places", self.num_places)):
+                diagnostics[f"rhat_{name}"] = split_rhat(trace)
+                diagnostics[f"ess_{name}"] = effective_sample_size(trace)
+        diagnostics["n_distinct"] = len(self.counts)
+        partitions = np.array([partition.labels for partition in self.counts], dtype=np.int32)
+        frequencies = np.array(list(self.counts.values()), dtype=float)
+        return PTM(partitions, frequencies, method, diagnostics,
+                   traces={"log_prob": self.log_prob, "num_places": self.num_places})
 
 
 def _start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:
