@@ -21,10 +21,11 @@ from .posterior import Posterior
 from .prior import PoissonPrior
 from .result import PTM, total_variation
 from .sampler import mcmc
+from .tempering import tempered_mcmc
 
 __all__ = [
     "AppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
     "bell", "canonical", "exact_posterior", "features", "inverse_gamma_from_mean_variance",
-    "mcmc", "moves", "stirling2", "total_variation", "OdometryModel",
+    "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel",
 ]
 __version__ = "0.1.0"

@@ -172,3 +172,23 @@ def test_posterior_refuses_nan_from_a_term():
         posterior.log_prob([0, 1, 2])
     with pytest.raises(ValueError, match="3 labels"):
         posterior.log_prob([0, 1])
+
+
+def test_parallel_tempering_matches_exact_posterior():
+    posterior = appearance_posterior()
+    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=4)
+    assert ptm.total_variation(result, ptm.exact_posterior(posterior)) < TOLERANCE
+    assert all(0.0 < rate < 1.0 for rate in result.diagnostics["swap_acceptance"])
+
+
+def test_parallel_tempering_negative_control_fails():
+    posterior = appearance_posterior()
+    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5), burn_in=500, seed=4,
+                               moves=[SplitMergeWithoutHastingsRatio()])
+    assert ptm.total_variation(result, ptm.exact_posterior(posterior)) > 3 * TOLERANCE
+
+
+@pytest.mark.parametrize("temperatures", [(1.0,), (0.9, 0.5), (1.0, 0.5, 0.7), (1.0, 0.0)])
+def test_parallel_tempering_rejects_bad_ladders(temperatures):
+    with pytest.raises(ValueError, match="temperatures"):
+        ptm.tempered_mcmc(appearance_posterior(), 10, temperatures=temperatures)
