@@ -13,8 +13,12 @@ expected number of places, the entropy, and a pandas export.
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
+from .dataset import atomic_write
 from .partitions import canonical
 
 __all__ = ["PTM", "total_variation"]
@@ -122,10 +126,39 @@ class PTM:
             "num_places": rows.max(axis=1).astype(int) + 1,
         })
 
+    def save(self, path) -> Path:
+        """Write the PTM (partitions, probabilities, traces, diagnostics) to one ``.npz`` file, atomically."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            raise ValueError(f"PTM files end in .npz, got {path.name!r}")
+        arrays = {"partitions": self.partitions, "probabilities": self.probabilities,
+                  "method": np.array(self.method),
+                  "diagnostics": np.array(json.dumps(self.diagnostics, default=_jsonable))}
+        arrays.update({f"trace_{name}": value for name, value in self.traces.items()})
+        atomic_write(path, lambda handle: np.savez_compressed(handle, **arrays))
+        return path
+
+    @classmethod
+    def load(cls, path) -> "PTM":
+        """Read a PTM written by :meth:`save`."""
+        with np.load(Path(path), allow_pickle=False) as archive:
+            traces = {name[len("trace_"):]: archive[name] for name in archive.files if name.startswith("trace_")}
+            return cls(archive["partitions"], archive["probabilities"], str(archive["method"]),
+                       json.loads(str(archive["diagnostics"])), traces)
+
     def __repr__(self) -> str:
         best, p = self.top(1)[0]
         return (f"PTM(method={self.method!r}, n={self.n}, topologies={len(self)}, "
                 f"map={best}, p_map={p:.3f})")
+
+
+def _jsonable(value):
+    """JSON fallback for numpy scalars and arrays in diagnostics."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
 
 
 def total_variation(first: PTM, second: PTM) -> float:

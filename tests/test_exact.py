@@ -63,3 +63,13 @@ def test_enumeration_refuses_beyond_the_limit():
         ptm.exact_posterior(prior_only_posterior(13))
     with pytest.raises(ValueError, match="max_n=4"):
         ptm.exact_posterior(prior_only_posterior(5), max_n=4)
+
+
+def test_ptm_save_and_load_round_trip(tmp_path):
+    result = ptm.mcmc(appearance_posterior(), 500, seed=0, chains=2)
+    loaded = ptm.PTM.load(result.save(tmp_path / "ptm.npz"))
+    assert loaded.top(10) == result.top(10)
+    assert np.array_equal(loaded.traces["log_prob"], result.traces["log_prob"])
+    assert loaded.diagnostics["acceptance_rate"] == result.diagnostics["acceptance_rate"]
+    with pytest.raises(ValueError, match=".npz"):
+        result.save(tmp_path / "ptm.json")
