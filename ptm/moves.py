@@ -122,6 +122,13 @@ def _uniform_index(rng: np.random.Generator, count: int) -> int:
     return min(int(rng.random() * count), count - 1)
 
 
+def _distinct_pair(rng: np.random.Generator, count: int) -> tuple[int, int]:
+    """An ordered pair of distinct indices, uniform among the count * (count - 1) pairs."""
+    first = _uniform_index(rng, count)
+    second = _uniform_index(rng, count - 1)
+    return first, second + (second >= first)
+
+
 def _with_member(block: Block, member: int) -> Block:
     position = bisect_left(block, member)
     return block[:position] + (member,) + block[position:]
@@ -138,10 +145,7 @@ class SplitMerge:
         if rng.random() < 0.5:
             if num_sets == 1:
                 return None
-            first = _uniform_index(rng, num_sets)
-            second = _uniform_index(rng, num_sets - 1)
-            if second >= first:
-                second += 1
+            first, second = _distinct_pair(rng, num_sets)
             merged = tuple(sorted(blocks[first] + blocks[second]))
             nonsingleton_after = sum(1 for block in blocks if len(block) > 1) + 1
             nonsingleton_after -= (len(blocks[first]) > 1) + (len(blocks[second]) > 1)
@@ -234,10 +238,7 @@ class SequentialSplitMerge:
         n = posterior.n
         if n == 1:
             return None
-        first = _uniform_index(rng, n)
-        second = _uniform_index(rng, n - 1)
-        if second >= first:
-            second += 1
+        first, second = _distinct_pair(rng, n)
         labels = state.partition.labels
         blocks = state.blocks
         if labels[first] == labels[second]:
