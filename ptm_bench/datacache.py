@@ -6,8 +6,8 @@ number of Fourier components); the simulator is deterministic in these
 model variants and the calibration of every cell of one condition share one
 dataset, so each is generated once per machine. Files are written atomically
 (two processes racing write the same bytes), without the panoramas. With
-``components`` set, signatures are recomputed from the panoramas with K
-components (SPEC §4) before these are dropped.
+``components`` set, the signatures keep K Fourier components (SPEC §4)
+instead of the generator's default.
 
     >>> dataset = dataset_for("nested_loops", aliasing=0.0, noise=1.0, seed=3, cache_dir="results/exp3/datasets")
     >>> dataset.n, dataset.meta["min_place_spacing"]
@@ -20,10 +20,7 @@ import hashlib
 import json
 from pathlib import Path
 
-import numpy as np
-
 import ptm
-from ptm.features import fourier_signature
 
 __all__ = ["dataset_for", "resolve_world"]
 
@@ -53,14 +50,10 @@ def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_
 
     from .generate import generate_dataset
 
-    world = resolve_world(world_spec, seed)
-    dataset = generate_dataset(world, aliasing, noise, seed, images=True, progress=False, **generator_options)
     if components is not None:
-        if dataset.panoramas is None:
-            raise ValueError("appearance.components needs the panoramas, but the generator returned none")
-        signatures = np.array([fourier_signature(panorama, k=components) for panorama in dataset.panoramas])
-        dataset = dataset.replace(signatures=signatures, meta={**dataset.meta, "components": components})
-    dataset = dataset.without_panoramas()
+        generator_options["signature_k"] = int(components)
+    world = resolve_world(world_spec, seed)
+    dataset = generate_dataset(world, aliasing, noise, seed, images=False, progress=False, **generator_options)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         dataset.save(path)

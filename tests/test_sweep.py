@@ -197,44 +197,10 @@ def test_bad_configs_are_refused_with_the_offending_name(tmp_path, bad, message)
         experiment.load_experiment(write_config(tmp_path, bad))
 
 
-# -- cells end to end, with a numpy stand-in for the simulator --------------------------------
+# -- cells end to end, on the simulator's short loop --------------------------------------------
 
-import sys  # noqa: E402
-import types  # noqa: E402
-
-from ptm_bench import floorplan  # noqa: E402
 from ptm_bench.cell import run_cell  # noqa: E402
 from ptm_bench.summary import write_summary  # noqa: E402
-
-
-def stand_in_generate_dataset(world, aliasing, noise, seed, images=True, progress=False):
-    """Visit every place of ``world`` once, then the first three again; noisy odometry and signatures."""
-    from ptm import Dataset
-    from ptm.dataset import wrap_angle
-
-    rng = np.random.default_rng(np.random.SeedSequence(seed))
-    ids = sorted(world.places)
-    visits = np.array(ids + ids[:3])
-    xy = np.array([world.places[i] for i in visits]) + rng.normal(scale=0.3, size=(len(visits), 2))
-    heading = np.arctan2(np.diff(xy[:, 1], append=xy[0, 1]), np.diff(xy[:, 0], append=xy[0, 0]))
-    poses = np.column_stack([xy, heading])
-    delta = poses[1:, :2] - poses[:-1, :2]
-    cos, sin = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
-    odometry = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                                wrap_angle(poses[1:, 2] - poses[:-1, 2])])
-    odometry += rng.normal(scale=[0.05 * noise, 0.05 * noise, 0.01 * noise], size=odometry.shape)
-    palettes = rng.uniform(0.05, 0.5, size=(floorplan.palette_count(len(ids), aliasing), 5))
-    signatures = palettes[visits % len(palettes)] + rng.normal(scale=0.005, size=(len(visits), 5))
-    meta = {"world": world.name, "aliasing": aliasing, "noise": noise, "seed": seed,
-            "min_place_spacing": world.min_place_spacing, "places": len(ids)}
-    return Dataset(odometry=odometry, signatures=signatures, labels=visits, true_poses=poses, meta=meta)
-
-
-@pytest.fixture
-def stand_in_simulator(monkeypatch):
-    module = types.ModuleType("ptm_bench.generate")
-    module.generate_dataset = stand_in_generate_dataset
-    monkeypatch.setitem(sys.modules, "ptm_bench.generate", module)
 
 
 END_TO_END_CONFIG = """
@@ -244,7 +210,7 @@ baselines = ["greedy_odometry", "appearance_threshold"]
 worlds = ["short_loop"]
 aliasing = [0.0, 1.0]
 seeds = [0]
-calibration_seeds = [10, 11]
+calibration_seeds = [10]
 [inference]
 n_samples = 300
 burn_in = 50
@@ -265,7 +231,7 @@ gt_mass = 0.5
 """
 
 
-def test_cells_run_end_to_end_and_the_summary_is_written(tmp_path, stand_in_simulator):
+def test_cells_run_end_to_end_and_the_summary_is_written(tmp_path):
     config = experiment.load_experiment(write_config(tmp_path, END_TO_END_CONFIG))
     results = tmp_path / "tiny"
     cells = experiment.expand_cells(config, results)
@@ -275,7 +241,8 @@ def test_cells_run_end_to_end_and_the_summary_is_written(tmp_path, stand_in_simu
     # Unique appearance and tiny signature noise: the exact appearance posterior favours the truth.
     assert unique.loc["exact appearance", "gt_rank"] == 1
     assert unique.loc["exact appearance", "gt_mass"] > 0.5
-    assert unique.loc["appearance_threshold", "ari"] == 1.0
+    baselines = table[table["method"] == "baseline"]
+    assert (baselines["n_topologies"] == 1).all() and baselines["gt_mass"].isin([0.0, 1.0]).all()
     summary = write_summary(config, table, results).read_text()
     assert "## The paper's figures and ours" in summary
     assert (results / "top5_odometry_appearance.png").is_file()
