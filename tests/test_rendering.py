@@ -1,0 +1,76 @@
+"""Rendering: eight views stitched into a panorama; Fourier signatures are rotation-invariant on real renders.
+
+Small images (24 x 32 per camera) keep these fast on a CPU with software EGL.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from ptm.features import fourier_signature
+from ptm_bench.floorplan import load_world
+from ptm_bench.generate import build_world
+from ptm_bench.panorama import CylindricalStitcher, add_pixel_noise
+from ptm_bench.robot import Rig, RigConfig
+
+SMALL = RigConfig(image_height=24, image_width=32)
+
+
+@pytest.fixture(scope="module")
+def short_loop_rig():
+    floor = load_world("short_loop")
+    model, palette_of_place, _ = build_world(floor, 0.0, np.random.default_rng(0), SMALL)
+    rig = Rig(model, SMALL)
+    yield floor, rig, palette_of_place
+    rig.close()
+
+
+def _panorama(rig, x, y, heading):
+    qpos = np.zeros(rig.model.nq)
+    qpos[:3] = (x, y, heading)
+    return CylindricalStitcher(SMALL).stitch(rig.views(qpos))
+
+
+def test_panorama_has_eight_strips(short_loop_rig):
+    _, rig, _ = short_loop_rig
+    stitcher = CylindricalStitcher(SMALL)
+    panorama = _panorama(rig, 0.1, 0.05, 0.0)
+    assert panorama.shape == (SMALL.image_height, stitcher.width, 3) and panorama.dtype == np.uint8
+    assert stitcher.width == 8 * round(SMALL.focal_px * math.pi / 4)
+    assert panorama.std() > 5  # the walls, floor and markers give the cameras structure to see
+
+
+def test_turning_by_45_degrees_shifts_the_panorama_by_one_strip(short_loop_rig):
+    _, rig, _ = short_loop_rig
+    stitcher = CylindricalStitcher(SMALL)
+    before = _panorama(rig, 0.1, 0.05, 0.3).astype(int)
+    after = _panorama(rig, 0.1, 0.05, 0.3 + math.pi / 4).astype(int)
+    difference = np.abs(after - np.roll(before, stitcher.strip_width, axis=1))
+    assert np.mean(difference <= 2) > 0.99
+
+
+def test_signatures_are_rotation_invariant_and_separate_palettes(short_loop_rig):
+    floor, rig, palette_of_place = short_loop_rig
+    x, y = floor.places[0]
+    same_spot = np.array([fourier_signature(_panorama(rig, x + 0.1, y + 0.05, h)) for h in (0.0, 0.7, 2.0, -2.5, 4.0)])
+    others = [p for p in floor.places if palette_of_place[p] != palette_of_place[0]]
+    assert others
+    elsewhere = np.array([fourier_signature(_panorama(rig, *floor.places[p], 0.0)) for p in others])
+    within = np.linalg.norm(same_spot[:, None] - same_spot[None], axis=2).max()
+    between = np.linalg.norm(same_spot[:, None] - elsewhere[None], axis=2).min()
+    assert within < 0.25 * between, (within, between)
+
+
+def test_stitcher_rejects_wrong_views():
+    stitcher = CylindricalStitcher(SMALL)
+    with pytest.raises(ValueError, match="expected 8"):
+        stitcher.stitch([np.zeros((24, 32, 3), np.uint8)] * 7)
+    with pytest.raises(ValueError, match=r"views\[0\]"):
+        stitcher.stitch([np.zeros((24, 30, 3), np.uint8)] * 8)
+
+
+def test_pixel_noise_has_the_requested_spread():
+    image = np.full((64, 640, 3), 128, np.uint8)
+    noisy = add_pixel_noise(image, 3.0, np.random.default_rng(0)).astype(float)
+    assert noisy.std() == pytest.approx(3.0, rel=0.03) and abs(noisy.mean() - 128) < 0.05
