@@ -31,6 +31,7 @@ from ptm.dataset import atomic_write
 # section name -> "module:function"; each function takes the parsed args and returns row dicts.
 SECTIONS = {
     "core": "ptm_bench.speed:core_rows",
+    "simulator": "ptm_bench.bench_simulator:simulator_rows",
 }
 
 
