@@ -55,16 +55,19 @@ class Corridor:
 
 @dataclass(frozen=True)
 class Palette:
-    """The look of a place: RGB colours of the walls in four compass sectors and of its floor marker.
+    """The look of a place: RGB colours of the walls in four sectors, of its floor marker and pillar.
 
     Sector j covers bearings [90j - 45, 90j + 45) degrees seen from the place,
     measured from the place's frame (``Floorplan.place_frame``, fixed by the
     corridor layout), so the pattern is a property of the place, not of the
-    robot's heading, and congruent places with one palette look alike.
+    robot's heading, and congruent places with one palette look alike. A
+    pillar prop in the marker colour stands against the wall at bearing
+    ``prop_bearing`` degrees in the same frame.
     """
 
     sectors: tuple[tuple[float, float, float], ...]
     marker: tuple[float, float, float]
+    prop_bearing: float = 45.0
 
     def luminance(self) -> np.ndarray:
         """Luma of each sector colour (the quantity the grayscale signature sees)."""
@@ -348,6 +351,7 @@ class _Reader:
                 Palette(
                     tuple(self.colour(colour, f"{path}.sectors") for colour in sectors),
                     self.colour(row.get("marker"), f"{path}.marker"),
+                    self.number(row, "prop_bearing", f"{path}.prop_bearing", default=45.0, positive=False),
                 )
             )
 
@@ -431,7 +435,8 @@ def palette_library(count: int, rng: np.random.Generator, given=()) -> tuple[Pal
     for _ in range(64 * count):
         luminances = rng.choice(levels, size=SECTOR_COUNT)
         sectors = tuple(_colour_with_luminance(rng, value) for value in luminances)
-        pool.append(Palette(sectors, _colour_with_luminance(rng, rng.choice(levels))))
+        marker = _colour_with_luminance(rng, rng.choice(levels))
+        pool.append(Palette(sectors, marker, float(rng.choice([45.0, 135.0, 225.0, 315.0]))))
     pool_signatures = np.array([_ring_signature(p) for p in pool])
     chosen_signatures = [_ring_signature(p) for p in chosen]
     if not chosen:

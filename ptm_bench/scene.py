@@ -8,7 +8,7 @@ the same look are merged into boxes. Wall cells within ``zone_radius`` of a
 place take the colour of that place's palette sector (the bearing from the
 place relative to its layout frame, in four 90-degree sectors) and are named ``place_<id>_wall_<k>``; all
 other walls are ``wall_<k>``. Each place also gets a floor marker
-``place_<id>_marker`` and an invisible site ``place_<id>_site`` whose name is
+``place_<id>_marker``, a pillar prop ``place_<id>_prop`` and an invisible site ``place_<id>_site`` whose name is
 where ground-truth labels are read from. The base and cameras ``cam_0``..``cam_7``
 come from :mod:`ptm_bench.robot`. Names are deterministic.
 
@@ -99,6 +99,7 @@ def build_mjcf(floor: Floorplan, palettes: dict[int, Palette], rig: RigConfig = 
             f'<geom name="{prefix}_{index}" type="box" pos="{centre_x:.4f} {centre_y:.4f} {wall_height / 2:.4f}" '
             f'size="{size}" {look_attributes}/>'
         )
+    geoms.extend(_pillars(floor, palettes, origin, looks[0], cell_size))
     for place_id in sorted(floor.places):
         x, y = floor.places[place_id]
         r, g, b = palettes[place_id].marker
@@ -179,6 +180,29 @@ def _wall_looks(floor: Floorplan, origin, wall, cell_size) -> tuple[np.ndarray, 
         place_sector = np.floor((bearing + math.pi / SECTOR_COUNT) / (2 * math.pi / SECTOR_COUNT)).astype(int) % SECTOR_COUNT
         sector = np.where(claim, place_sector, sector)
     return owner, sector
+
+
+def _pillars(floor: Floorplan, palettes, origin, owner, cell_size, radius: float = 0.12, height: float = 1.8):
+    """A pillar ``place_<id>_prop`` per place, against its zone's wall nearest the palette's prop bearing."""
+    geoms = []
+    for place_id, (px, py) in sorted(floor.places.items()):
+        rows, cols = np.nonzero(owner == place_id)
+        if not len(rows):
+            continue
+        x = origin[0] + (cols + 0.5) * cell_size
+        y = origin[1] + (rows + 0.5) * cell_size
+        bearing = np.arctan2(y - py, x - px) - floor.place_frame(place_id)
+        target = math.radians(palettes[place_id].prop_bearing)
+        best = int(np.argmin(np.abs(np.angle(np.exp(1j * (bearing - target))))))
+        towards = np.array([px - x[best], py - y[best]])
+        towards /= np.linalg.norm(towards)
+        cx, cy = np.array([x[best], y[best]]) + towards * (cell_size / 2 + radius)
+        r, g, b = palettes[place_id].marker
+        geoms.append(
+            f'<geom name="place_{place_id}_prop" type="cylinder" pos="{cx:.4f} {cy:.4f} {height / 2:.4f}" '
+            f'size="{radius:.3f} {height / 2:.4f}" rgba="{r:.4f} {g:.4f} {b:.4f} 1"/>'
+        )
+    return geoms
 
 
 def _merge_runs(wall, looks, height):

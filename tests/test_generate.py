@@ -108,6 +108,19 @@ def test_a_procedural_grid_generates():
     assert set(ds.labels.tolist()) <= set(grid.places)
 
 
+def test_misses_and_false_detections_reach_the_dataset():
+    clean = generate_dataset("office", 0.5, 1.0, 0, images=False, rig=SMALL)
+    noisy = generate_dataset("office", 0.5, 1.0, 0, images=False, rig=SMALL, miss_rate=0.2, false_rate=0.03)
+    false = noisy.meta["detector"]["false_detections"]
+    assert false and all(noisy.labels[i] < 0 for i in false)
+    assert sorted(noisy.labels[noisy.labels < 0].tolist()) == list(range(-len(false), 0))
+    true_visits = noisy.n - len(false)
+    assert true_visits < clean.n  # with seed 0 at least one of the nine visits is missed
+    places = np.array([clean.meta["places"][key] for key in clean.meta["places"]])
+    far = np.linalg.norm(noisy.true_poses[false, None, :2] - places[None], axis=2).min(axis=1)
+    assert np.all(far > 2 * noisy.meta["detection_radius"])
+
+
 def test_images_are_kept_unless_asked_not_to():
     ds = generate_dataset("short_loop", 0.0, 1.0, 0, images=True, rig=SMALL)
     assert ds.panoramas.shape[:2] == (9, SMALL.image_height) and ds.panoramas.dtype == np.uint8
