@@ -152,8 +152,9 @@ def integrate(increments, start=(0.0, 0.0, 0.0)) -> np.ndarray:
     increments = np.asarray(increments, dtype=float)
     headings = start[2] + np.concatenate([[0.0], np.cumsum(increments[:, 2])])
     c, s = np.cos(headings[:-1]), np.sin(headings[:-1])
-    world_steps = np.stack([c * increments[:, 0] - s * increments[:, 1], s * increments[:, 0] + c * increments[:, 1]], axis=-1)
-    positions = np.asarray(start[:2], dtype=float) + np.concatenate([np.zeros((1, 2)), np.cumsum(world_steps, axis=0)])
+    world_steps = np.stack([c * increments[:, 0] - s * increments[:, 1],
+                            s * increments[:, 0] + c * increments[:, 1]], axis=-1)
+    positions = np.asarray(start[:2], dtype=float) + np.concatenate([np.zeros((1, 2)), np.cumsum(world_steps, 0)])
     return np.column_stack([positions, headings])
 
 
@@ -164,7 +165,8 @@ def detection_odometry(steps: OdometrySteps, detection_steps) -> tuple[np.ndarra
     to the pose at ``detection_steps[k]``, in the frame of the earlier pose.
     """
     indices = np.asarray(detection_steps, dtype=int)
-    if indices.ndim != 1 or np.any(np.diff(indices) <= 0) or (len(indices) and (indices[0] < 0 or indices[-1] > len(steps.increments))):
+    in_run = len(indices) == 0 or (indices[0] >= 0 and indices[-1] <= len(steps.increments))
+    if indices.ndim != 1 or np.any(np.diff(indices) <= 0) or not in_run:
         raise ValueError("detection_steps must be strictly increasing step indices within the run")
     odometry_poses = integrate(steps.increments)
     rows = relative_pose(odometry_poses[indices[:-1]], odometry_poses[indices[1:]])
@@ -195,6 +197,7 @@ def _row_covariance(steps: OdometrySteps, start: int, stop: int) -> np.ndarray:
         transition[:3, 3] = step_map[:, 1] * trans[k]
         transition[:3, 4] = step_map[:, 2] * trans[k]
         noise_map[:3] = step_map
-        covariance = transition @ covariance @ transition.T + noise_map @ np.diag(steps.sigmas[start + k] ** 2) @ noise_map.T
+        step_covariance = np.diag(steps.sigmas[start + k] ** 2)
+        covariance = transition @ covariance @ transition.T + noise_map @ step_covariance @ noise_map.T
         pose = compose(pose, increment)
     return covariance[:3, :3] + COVARIANCE_FLOOR * np.eye(3)

@@ -121,9 +121,11 @@ def test_misses_and_false_detections_reach_the_dataset():
     assert np.all(far > 2 * noisy.meta["detection_radius"])
 
 
-def test_images_are_kept_unless_asked_not_to():
+def test_images_are_kept_unless_asked_not_to_and_render_reproducibly():
     ds = generate_dataset("short_loop", 0.0, 1.0, 0, images=True, rig=SMALL)
     assert ds.panoramas.shape[:2] == (9, SMALL.image_height) and ds.panoramas.dtype == np.uint8
+    again = generate_dataset("short_loop", 0.0, 1.0, 0, images=True, rig=SMALL)
+    assert again.panoramas.tobytes() == ds.panoramas.tobytes()
 
 
 @pytest.mark.parametrize(
