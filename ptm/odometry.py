@@ -147,8 +147,9 @@ class OdometryTerm:
         self.dimension = self.graph.dimension
         generator = np.random.default_rng(model.seed if isinstance(model.seed, np.random.SeedSequence)
                                           else np.random.SeedSequence(model.seed))
-        self.noise = generator.standard_normal((model.n_importance, self.dimension))
-        self._half_noise_norms = 0.5 * np.einsum("sd,sd->s", self.noise, self.noise)
+        noise = generator.standard_normal((model.n_importance, self.dimension))
+        self._noise_columns = np.asfortranarray(noise.T)  # the layout LAPACK's triangular solve takes as is
+        self._half_noise_norms = 0.5 * np.einsum("sd,sd->s", noise, noise)
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._last_solution = self._dead_reckoning
@@ -212,7 +213,7 @@ class OdometryTerm:
         return candidates[int(np.argmin(energies))]
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
-        samples = fit.x + fit.factor.whiten_inverse(self.noise)
+        samples = fit.x + fit.factor.whiten_inverse(self._noise_columns).T
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         log_weights = (log_proposal_norm + self._half_noise_norms
                        - self.graph.energy(samples, labels) - self._penalties(samples, fit.x, labels))

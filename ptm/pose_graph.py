@@ -340,6 +340,11 @@ class PoseGraph:
         ``in_workspace`` assembles a dense matrix in the reused workspace (for
         factors that are not kept beyond the next assembly).
         """
+        matrix = self._hessian_matrix(topology, blocks, added_diagonal, in_workspace)
+        return SparseFactor(matrix) if self.sparse else DenseFactor(matrix, overwrite=True)
+
+    def _hessian_matrix(self, topology: _TopologyHessian, blocks, added_diagonal=None, in_workspace=False):
+        """Assemble topology Laplacian + the block-tridiagonal odometry part (+ a diagonal)."""
         poses = self.n - 1
         diagonal, above = blocks[:poses], blocks[poses:]
         shape = (self.dimension, self.dimension)
@@ -351,7 +356,7 @@ class PoseGraph:
             matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=shape)
             if added_diagonal is not None:
                 matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
-            return SparseFactor(matrix)
+            return matrix
         matrix = self._workspace if in_workspace else np.empty(shape)
         matrix.fill(0.0)
         matrix[topology.rows, topology.cols] = topology.values
@@ -362,7 +367,7 @@ class PoseGraph:
         grid[index[1:], :, index[:-1], :] += np.swapaxes(above, 1, 2)
         if added_diagonal is not None:
             matrix.flat[:: self.dimension + 1] += added_diagonal
-        return DenseFactor(matrix, overwrite=True)
+        return matrix
 
     def _topology_hessian(self, labels) -> _TopologyHessian:
         rows, cols, values = [], [], []
@@ -408,9 +413,9 @@ class DenseFactor:
     def log_det(self) -> float:
         return 2.0 * float(np.sum(np.log(np.diag(self.lower))))
 
-    def whiten_inverse(self, noise) -> np.ndarray:
-        """Rows L^-T eps_s for rows eps_s of ``noise``: draws from N(0, H^-1) given eps ~ N(0, I)."""
-        return scipy.linalg.solve_triangular(self.lower, noise.T, trans="T", lower=True, check_finite=False).T
+    def whiten_inverse(self, noise_columns) -> np.ndarray:
+        """Columns L^-T eps_s for columns eps_s of ``noise_columns`` (d, S): draws from N(0, H^-1)."""
+        return scipy.linalg.solve_triangular(self.lower, noise_columns, trans="T", lower=True, check_finite=False)
 
 
 class SparseFactor:
@@ -439,10 +444,11 @@ class SparseFactor:
     def log_det(self) -> float:
         return float(np.sum(np.log(self.pivots)))
 
-    def whiten_inverse(self, noise) -> np.ndarray:
-        scaled = (noise * np.sqrt(self.pivots)).T
+    def whiten_inverse(self, noise_columns) -> np.ndarray:
+        """Columns G^-T eps_s for columns eps_s of ``noise_columns`` (d, S): draws from N(0, H^-1)."""
+        scaled = noise_columns * np.sqrt(self.pivots)[:, None]
         solved = scipy.sparse.linalg.spsolve_triangular(self.upper, scaled, lower=False)
-        return solved[self.lu.perm_c].T  # undo the symmetric ordering: x = P y, P[i, perm_c[i]] = 1
+        return solved[self.lu.perm_c]  # undo the symmetric ordering: x = P y, P[i, perm_c[i]] = 1
 
 
 def _tridiagonal_block_indices(poses: int) -> tuple[np.ndarray, np.ndarray]:
