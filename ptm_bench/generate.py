@@ -241,9 +241,11 @@ def _run_generate(args) -> int:
     except OSError as error:
         raise ValueError(f"out: cannot write {out}: {error}") from None
     meta = dataset.meta
+    false = len(meta["detector"]["false_detections"])
     print(
-        f"wrote {out}: {meta['world']}, {dataset.n} detections of {len(set(dataset.labels.tolist()))} places "
-        f"({meta['n_palettes']} palettes), aliasing {meta['aliasing']:g}, noise {meta['noise']:g}, "
+        f"wrote {out}: {meta['world']}, {dataset.n} detections of {len(set(dataset.labels.tolist())) - false} places"
+        f"{f' + {false} false' if false else ''} ({meta['n_palettes']} palettes), "
+        f"aliasing {meta['aliasing']:g}, noise {meta['noise']:g}, "
         f"seed {meta['seed']}, route {meta['route_length']:.0f} m, {time.perf_counter() - started:.1f} s"
     )
     return 0
