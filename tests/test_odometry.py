@@ -38,12 +38,20 @@ def square_loop_dataset(n, side=5.0, sigma_xy=0.1, sigma_theta=0.03, seed=0, sig
     return ptm.Dataset(odometry=odometry, labels=labels, true_poses=poses, signatures=signatures)
 
 
-def mixed_posterior(n=7, model_seed=0):
-    """Odometry + appearance on a noisy, aliased loop: an exact posterior spread over many topologies."""
-    dataset = square_loop_dataset(n, side=4.0, sigma_xy=0.5, sigma_theta=0.15, seed=1, signature_noise=0.05)
+def mixed_dataset(n=7):
+    """A noisy, aliased loop with odometry and appearance."""
+    return square_loop_dataset(n, side=4.0, sigma_xy=0.5, sigma_theta=0.15, seed=1, signature_noise=0.05)
+
+
+def mixed_posterior_of(dataset, model_seed=0):
+    """Odometry + appearance models matched to :func:`mixed_dataset`: a posterior spread over many topologies."""
     appearance = ptm.AppearanceModel(mu=0.3, kappa=0.05, alpha=3.0, beta=2.0 * 0.05**2)
     odometry = ptm.OdometryModel(0.5, 0.15, 0.5, 3.0, 5.0, n_importance=50, seed=model_seed)
     return ptm.Posterior(dataset, ptm.PoissonPrior(3.0), [appearance, odometry])
+
+
+def mixed_posterior(n=7, model_seed=0):
+    return mixed_posterior_of(mixed_dataset(n), model_seed)
 
 
 # -- derivatives ---------------------------------------------------------------------------------
