@@ -61,7 +61,8 @@ class OdometryEvaluation:
     laplace: float  # -E(P*) + (d/2) log 2 pi - 1/2 log det H (no penalty)
     standard_error: float  # delta-method Monte-Carlo standard error of the estimate [nats]
     ess: float  # effective sample size of the importance weights
-    iterations: int  # Gauss-Newton / Levenberg-Marquardt iterations
+    iterations: int  # Newton / Gauss-Newton / Levenberg-Marquardt iterations
+    factorisations: int  # Hessian factorisations spent by the fit
     converged: bool
     solution: np.ndarray  # P*, the (d,) state vector of poses 1..N-1
 
@@ -158,6 +159,7 @@ class OdometryTerm:
         self._failures = 0
         self._iterations_total = 0
         self._iterations_max = 0
+        self._factorisations_total = 0
         self._ess_total = 0.0
         self._ess_min = math.inf
         self._seconds = 0.0
@@ -178,7 +180,7 @@ class OdometryTerm:
             raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
         started = time.perf_counter()
         if self.n == 1:  # no free pose: the integral over a 0-dimensional space is 1
-            return OdometryEvaluation(0.0, 0.0, 0.0, float(self.model.n_importance), 0, True, np.zeros(0))
+            return OdometryEvaluation(0.0, 0.0, 0.0, float(self.model.n_importance), 0, 0, True, np.zeros(0))
         fit = self.graph.fit(self._warm_start(labels), labels)
         evaluation = self._importance_sample(fit, labels)
         if not math.isfinite(evaluation.log_likelihood):
@@ -200,6 +202,7 @@ class OdometryTerm:
             "n_importance": self.model.n_importance,
             "lm_iterations_mean": self._iterations_total / evaluations if evaluations else math.nan,
             "lm_iterations_max": self._iterations_max,
+            "factorisations_mean": self._factorisations_total / evaluations if evaluations else math.nan,
             "failures": self._failures,
             "evaluation_ms_mean": 1e3 * self._seconds / evaluations if evaluations else math.nan,
             "linear_algebra": "sparse" if self.graph.sparse else "dense",
@@ -227,6 +230,7 @@ class OdometryTerm:
             standard_error=standard_error,
             ess=ess,
             iterations=fit.iterations,
+            factorisations=fit.factorisations,
             converged=fit.converged,
             solution=fit.x,
         )
@@ -251,6 +255,7 @@ class OdometryTerm:
         self._failures += not evaluation.converged
         self._iterations_total += evaluation.iterations
         self._iterations_max = max(self._iterations_max, evaluation.iterations)
+        self._factorisations_total += evaluation.factorisations
         self._ess_total += evaluation.ess
         self._ess_min = min(self._ess_min, evaluation.ess)
         self._seconds += seconds

@@ -176,6 +176,7 @@ class LaplaceFit:
     energy: float  # E(P*)
     factor: "DenseFactor | SparseFactor"  # of the Gauss-Newton Hessian at P*
     iterations: int
+    factorisations: int  # Cholesky / LU factorisations spent, failed attempts included
     converged: bool
 
 
@@ -258,7 +259,9 @@ class PoseGraph:
         Levenberg-Marquardt style (lambda * diag of the Gauss-Newton Hessian)
         whenever the exact Hessian is indefinite or a step raises E: plain
         Gauss-Newton converges only linearly on the large residuals of an
-        implausible topology, and samplers propose many of those. Once a
+        implausible topology, and samplers propose many of those. After an
+        accepted step the same factor is reused once for a second
+        (chord) step, which nearly halves the factorisations. Once a
         Newton step is below ``close_tolerance`` the Gauss-Newton Hessian -- the
         one SPEC §3.3 defines the Laplace proposal with -- is factorised; the
         fit is converged when its step is below ``step_tolerance`` in every
@@ -273,16 +276,29 @@ class PoseGraph:
         energy = float(self.energy(x, labels))
         damping = 0.0
         close = False
+        chord_factor = None  # the last accepted step's factor, reused once (a Shamanskii step)
+        factorisations = 0
         for iteration in range(1, self.max_iterations + 1):
             gradient, gauss_newton, second_order = self._linearise(x, topology)
             if close:
                 factor = self._factorised_hessian(topology, gauss_newton)
+                factorisations += 1
                 step = -factor.solve(gradient)
                 if self._negligible(step, gradient, energy):
-                    return LaplaceFit(x, energy, factor, iteration, True)
+                    return LaplaceFit(x, energy, factor, iteration, factorisations, True)
+            if chord_factor is not None:
+                step = -chord_factor.solve(gradient)
+                chord_factor = None
+                candidate = x + step
+                candidate_energy = float(self.energy(candidate, labels))
+                if candidate_energy <= energy or self._negligible(step, gradient, energy):
+                    close = np.max(np.abs(step)) < self.close_tolerance
+                    x, energy = candidate, min(candidate_energy, energy)
+                    continue
             exact = gauss_newton + second_order
             damping_scale = np.diagonal(gauss_newton[: self.n - 1], axis1=1, axis2=2).ravel() + topology.diagonal
             while True:
+                factorisations += 1
                 try:
                     factor = self._factorised_hessian(topology, exact, damping * damping_scale, in_workspace=True)
                 except ValueError:  # indefinite: damp towards gradient descent
@@ -294,11 +310,13 @@ class PoseGraph:
                 if candidate_energy <= energy or self._negligible(step, gradient, energy):
                     close = np.max(np.abs(step)) < self.close_tolerance
                     x, energy = candidate, min(candidate_energy, energy)
-                    damping = damping / 10.0 if damping > 1e-7 else 0.0
+                    chord_factor = factor
+                    damping = damping / 10.0 if damping > 1e-3 else 0.0
                     break
                 damping = max(1e-4, 10.0 * damping)
         _, gauss_newton, _ = self._linearise(x, topology)
-        return LaplaceFit(x, energy, self._factorised_hessian(topology, gauss_newton), self.max_iterations, False)
+        factor = self._factorised_hessian(topology, gauss_newton)
+        return LaplaceFit(x, energy, factor, self.max_iterations, factorisations + 1, False)
 
     def _negligible(self, step, gradient, energy) -> bool:
         predicted_decrease = -0.5 * float(gradient @ step)
@@ -370,28 +388,19 @@ class PoseGraph:
         return matrix
 
     def _topology_hessian(self, labels) -> _TopologyHessian:
-        rows, cols, values = [], [], []
+        """Entries w (|S| I - 1 1^T), w = 1/sigma_T^2, of every set S with two or more members,
+        on the x and y coordinates of its free poses (pose 0 is fixed but still counts in |S|)."""
+        sizes = np.bincount(labels)[labels]
+        free_labels = labels[1:]
+        shared = (free_labels[:, None] == free_labels[None, :]) & (sizes[1:, None] > 1)
+        first, second = np.nonzero(shared)
         weight = 1.0 / self.sigma_topology**2
-        order = np.argsort(labels, kind="stable")
-        boundaries = np.flatnonzero(np.diff(labels[order])) + 1
-        for members in np.split(order, boundaries):
-            size = len(members)
-            free = members[members > 0] - 1
-            if size < 2 or not len(free):
-                continue
-            block = weight * (size * np.eye(len(free)) - 1.0)  # (|S| I - 1 1^T) restricted to free poses
-            block_rows = np.repeat(free, len(free))
-            block_cols = np.tile(free, len(free))
-            for axis in (0, 1):
-                rows.append(3 * block_rows + axis)
-                cols.append(3 * block_cols + axis)
-                values.append(block.ravel())
-        if not rows:
-            empty = np.zeros(0, dtype=np.intp)
-            return _TopologyHessian(empty, empty, np.zeros(0), np.zeros(self.dimension))
-        rows, cols, values = np.concatenate(rows), np.concatenate(cols), np.concatenate(values)
-        on_diagonal = rows == cols
+        pair_values = np.where(first == second, weight * (sizes[1:][first] - 1.0), -weight)
+        rows = np.concatenate([3 * first, 3 * first + 1])
+        cols = np.concatenate([3 * second, 3 * second + 1])
+        values = np.concatenate([pair_values, pair_values])
         diagonal = np.zeros(self.dimension)
+        on_diagonal = rows == cols
         diagonal[rows[on_diagonal]] = values[on_diagonal]
         return _TopologyHessian(rows, cols, values, diagonal)
 
@@ -422,8 +431,8 @@ class SparseFactor:
     """P^T H P = L D L^T of a sparse symmetric positive-definite matrix (SuperLU, diagonal pivots).
 
     With a symmetric fill-reducing ordering and no off-diagonal pivoting the LU
-    factors of an SPD matrix are U = D L^T, so G = P L D^1/2 satisfies G G^T = H
-    and G^-T eps = P U^-1 D^1/2 eps.
+    factors of an SPD matrix are U = D L^T, so G = P L D^1/2 satisfies G G^T = H,
+    and G^-T eps = H^-1 (G eps): one sparse product and one SuperLU solve.
     """
 
     def __init__(self, matrix):
@@ -436,7 +445,7 @@ class SparseFactor:
         self.pivots = self.lu.U.diagonal()
         if not np.all(self.pivots > 0.0):
             raise ValueError("the pose-graph Hessian is not positive definite")
-        self.upper = self.lu.U.tocsr()
+        self.lower = self.lu.L.tocsr()
 
     def solve(self, rhs) -> np.ndarray:
         return self.lu.solve(rhs)
@@ -446,9 +455,8 @@ class SparseFactor:
 
     def whiten_inverse(self, noise_columns) -> np.ndarray:
         """Columns G^-T eps_s for columns eps_s of ``noise_columns`` (d, S): draws from N(0, H^-1)."""
-        scaled = noise_columns * np.sqrt(self.pivots)[:, None]
-        solved = scipy.sparse.linalg.spsolve_triangular(self.upper, scaled, lower=False)
-        return solved[self.lu.perm_c]  # undo the symmetric ordering: x = P y, P[i, perm_c[i]] = 1
+        factor_times_noise = self.lower @ (noise_columns * np.sqrt(self.pivots)[:, None])
+        return self.lu.solve(factor_times_noise[self.lu.perm_c])  # P y: (P y)_i = y[perm_c[i]]
 
 
 def _tridiagonal_block_indices(poses: int) -> tuple[np.ndarray, np.ndarray]:

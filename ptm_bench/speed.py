@@ -32,6 +32,7 @@ from ptm.dataset import atomic_write
 SECTIONS = {
     "core": "ptm_bench.speed:core_rows",
     "simulator": "ptm_bench.bench_simulator:simulator_rows",
+    "odometry": "ptm_bench.bench_odometry:odometry_rows",
 }
 
 
