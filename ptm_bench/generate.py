@@ -63,7 +63,7 @@ def generate_dataset(
     miss_rate: float = 0.0,
     false_rate: float = 0.0,
     pixel_noise: float = 2.0,
-    lighting_variation: float = 0.1,
+    lighting_variation: float = 0.05,
     signature_k: int = 5,
     cell_size: float = 0.25,
 ) -> ptm.Dataset:
