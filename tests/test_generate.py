@@ -1,5 +1,7 @@
 """Dataset generation end to end: reproducibility, ground truth, noise-free odometry, aliasing, bad input, CLI."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -32,6 +34,18 @@ def test_dataset_has_the_contracted_fields(short_run):
     assert all(key in ds.meta for key in REQUIRED_META)
     assert ds.meta["places"] == {str(p): list(xy) for p, xy in load_world("short_loop").places.items()}
     assert ds.meta["camera"]["camera_count"] == 8
+
+
+@pytest.mark.parametrize(
+    "world, labels",
+    [("office", [0, 4, 1, 2, 5, 3, 0, 4, 1]), ("nested_loops", [0, 1, 2, 3, 4, 5, 0, 1, 6, 7, 2, 3])],
+)
+def test_presets_give_the_papers_detection_sequences_within_the_time_budget(world, labels):
+    started = time.perf_counter()
+    ds = generate_dataset(world, 0.3, 1.0, 0, images=True)  # default eight-camera resolution
+    assert time.perf_counter() - started < 30.0  # the issue's budget for nested_loops on two cores
+    assert ds.labels.tolist() == labels
+    assert ds.panoramas.shape == (len(labels), RigConfig().image_height, ds.meta["panorama"]["width"], 3)
 
 
 def test_same_seed_gives_identical_arrays_and_different_seeds_differ(short_run):
