@@ -102,3 +102,13 @@ def test_csv_import(tmp_path):
     (tmp_path / "words.csv").write_text("0.1,0.2,0.3\nfoo,bar,baz\n")
     with pytest.raises(ValueError, match="words.csv:2: not a row of numbers"):
         Dataset.from_csv(odometry=tmp_path / "words.csv")
+
+
+def test_saved_files_get_the_usual_permissions(tmp_path):
+    import os
+    import stat
+
+    path = full_dataset().save(tmp_path / "run.npz")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
