@@ -11,10 +11,13 @@ plus the topology tie, both in the 1/2 r^T Sigma^-1 r convention). The
 integral is evaluated as the paper does: a Laplace fit Q = N(P*, H^-1) of E,
 then importance sampling from Q,
 
-    log w_s = -E(P_s) - Pen(P_s) + (d/2) log 2 pi - 1/2 log det H + 1/2 |eps_s|^2,
-    P_s = P* + L^-T eps_s,    log P(O | T) = logsumexp_s(log w_s) - log S.
+    log w_s = -E(P_s) - Pen(P_s) + (d/2) log 2 pi - 1/2 log det H + 1/2 (P_s - P*)^T H (P_s - P*),
+    P_s ~ N(P*, H^-1),    log P(O | T) = logsumexp_s(log w_s) - log S.
 
-The noise matrix eps (S x d) is drawn once per bound term from the model's
+(With a factor H = L L^T and P_s = P* + L^-T eps_s the last term is the
+SPEC's 1/2 |eps_s|^2; the structured factor of :mod:`ptm.pose_graph` draws
+P_s from d + r normals instead and evaluates the quadratic form directly.)
+The noise matrix eps (S x (d + N)) is drawn once per bound term from the model's
 seed (common random numbers), so the estimate is a deterministic function of
 the partition and the MCMC target is well defined; results are memoised per
 canonical partition in a bounded LRU cache.
@@ -148,9 +151,9 @@ class OdometryTerm:
         self.dimension = self.graph.dimension
         generator = np.random.default_rng(model.seed if isinstance(model.seed, np.random.SeedSequence)
                                           else np.random.SeedSequence(model.seed))
-        noise = generator.standard_normal((model.n_importance, self.dimension))
-        self._noise_columns = np.asfortranarray(noise.T)  # the layout LAPACK's triangular solve takes as is
-        self._half_noise_norms = 0.5 * np.einsum("sd,sd->s", noise, noise)
+        # d rows for the poses plus up to N for the low-rank part of the factor (one per set and axis)
+        noise = generator.standard_normal((model.n_importance, self.dimension + self.n))
+        self._noise_columns = np.asfortranarray(noise.T)  # the layout LAPACK's triangular solves take as is
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._last_solution = self._dead_reckoning
@@ -216,9 +219,10 @@ class OdometryTerm:
         return candidates[int(np.argmin(energies))]
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
-        samples = fit.x + fit.factor.whiten_inverse(self._noise_columns).T
+        offsets, half_quadratic = fit.factor.sample(self._noise_columns)
+        samples = fit.x + offsets.T
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
-        log_weights = (log_proposal_norm + self._half_noise_norms
+        log_weights = (log_proposal_norm + half_quadratic
                        - self.graph.energy(samples, labels) - self._penalties(samples, fit.x, labels))
         estimate = float(logsumexp(log_weights) - math.log(len(log_weights)))
         weights = np.exp(log_weights - log_weights.max())

@@ -13,11 +13,20 @@ The residual is the relative pose expressed in the frame of the earlier
 detection minus the measured odometry row, so ``odometry_cov`` (given in that
 same frame) whitens it directly. The topology term is exactly quadratic in the
 positions: its Hessian is the graph Laplacian of the cliques of T divided by
-sigma_T^2, built once per partition. The minimiser P* is found by
-Gauss-Newton with Levenberg-Marquardt damping and analytic Jacobians; the
-Gauss-Newton Hessian H = J^T W J (+ topology Laplacian) at P* is factorised
-densely (Cholesky) or sparsely (SuperLU with a symmetric ordering and diagonal
-pivots, i.e. an L D L^T factorisation) depending on d.
+sigma_T^2, built once per partition. The minimiser P* is found by damped
+Newton steps with analytic derivatives; the Gauss-Newton Hessian
+H = J^T W J (+ topology Laplacian) at P* defines the Laplace proposal.
+
+Linear algebra exploits the structure. Per set S the clique Laplacian is
+(|S| I - 1 1^T) / sigma_T^2: a diagonal minus a rank-one term, so
+H = A - U U^T with A the block-tridiagonal odometry Hessian plus a diagonal
+(banded, half-bandwidth 5: a banded Cholesky costs O(d)) and U one column per
+set and axis (r <= N columns). Solves use the Woodbury identity, log det H =
+log det A + log det(I - U^T A^-1 U), and draws from N(0, H^-1) are
+L_A^-T eps_1 + A^-1 U L_K^-T eps_2 (K = I - U^T A^-1 U = L_K L_K^T), whose
+covariance is A^-1 + A^-1 U K^-1 U^T A^-1 = H^-1. Above ``sparse_above``
+variables, where r^2 d would dominate, a general sparse L D L^T (SuperLU with a
+symmetric ordering and diagonal pivots) is used instead.
 
     >>> graph = PoseGraph(odometry, odometry_sqrt_information(covariances), sigma_topology=0.3)
     >>> fit = graph.fit(graph.dead_reckoning(), labels=(0, 1, 2, 0))
@@ -48,7 +57,7 @@ __all__ = [
 ]
 
 #: Above this many variables the Hessian is factorised with sparse linear algebra.
-SPARSE_ABOVE_DIMENSION = 450
+SPARSE_ABOVE_DIMENSION = 600
 
 
 def odometry_sqrt_information(covariances) -> np.ndarray:
@@ -174,7 +183,7 @@ class LaplaceFit:
 
     x: np.ndarray  # the minimiser P*, shape (d,)
     energy: float  # E(P*)
-    factor: "DenseFactor | SparseFactor"  # of the Gauss-Newton Hessian at P*
+    factor: "BandedLowRankFactor | SparseFactor"  # of the Gauss-Newton Hessian at P*
     iterations: int
     factorisations: int  # Cholesky / LU factorisations spent, failed attempts included
     converged: bool
@@ -182,12 +191,17 @@ class LaplaceFit:
 
 @dataclass(frozen=True)
 class _TopologyHessian:
-    """COO entries of (clique Laplacian of T) / sigma_T^2 on the free x and y coordinates (no duplicates)."""
+    """(Clique Laplacian of T) / sigma_T^2 on the free x and y coordinates, two ways.
+
+    As COO entries (no duplicates), and as star_diagonal - low_rank low_rank^T.
+    """
 
     rows: np.ndarray
     cols: np.ndarray
     values: np.ndarray
     diagonal: np.ndarray  # (d,)
+    star_diagonal: np.ndarray  # (d,): |S| / sigma_T^2 on the members of non-singleton sets
+    low_rank: np.ndarray  # (d, r): per set and axis, 1 / sigma_T on the members' coordinates
 
     def __matmul__(self, vector) -> np.ndarray:
         return np.bincount(self.rows, weights=self.values * vector[self.cols], minlength=len(vector))
@@ -228,9 +242,7 @@ class PoseGraph:
         self.step_tolerance = float(step_tolerance)
         self.close_tolerance = float(close_tolerance)
         self._block_rows, self._block_cols = _tridiagonal_block_indices(self.n - 1)
-        # Newton systems are assembled and factorised in place here: a fresh d x d array per
-        # iteration costs page faults comparable to the Cholesky factorisation itself.
-        self._workspace = None if self.sparse else np.empty((self.dimension, self.dimension))
+        self._band_rows, self._band_cols, self._band_sources = _band_indices(self.n - 1)
 
     def dead_reckoning(self) -> np.ndarray:
         """The state that composes the odometry rows exactly (zero odometry energy)."""
@@ -300,7 +312,7 @@ class PoseGraph:
             while True:
                 factorisations += 1
                 try:
-                    factor = self._factorised_hessian(topology, exact, damping * damping_scale, in_workspace=True)
+                    factor = self._factorised_hessian(topology, exact, damping * damping_scale)
                 except ValueError:  # indefinite: damp towards gradient descent
                     damping = max(1e-4, 10.0 * damping)
                     continue
@@ -352,39 +364,27 @@ class PoseGraph:
         second_order[steps:] = second_between[1:]
         return gradient, gauss_newton, second_order
 
-    def _factorised_hessian(self, topology: _TopologyHessian, blocks, added_diagonal=None, in_workspace=False):
-        """Factorise topology Laplacian + the block-tridiagonal odometry part (+ a diagonal).
+    def _factorised_hessian(self, topology: _TopologyHessian, blocks, added_diagonal=None):
+        """Factorise the topology Laplacian + the block-tridiagonal odometry part (+ a diagonal)."""
+        if self.sparse:
+            return SparseFactor(self._hessian_matrix(topology, blocks, added_diagonal))
+        band = np.zeros((6, self.dimension))
+        band[self._band_rows, self._band_cols] = blocks.reshape(-1)[self._band_sources]
+        band[0] += topology.star_diagonal
+        if added_diagonal is not None:
+            band[0] += added_diagonal
+        return BandedLowRankFactor(band, topology.low_rank)
 
-        ``in_workspace`` assembles a dense matrix in the reused workspace (for
-        factors that are not kept beyond the next assembly).
-        """
-        matrix = self._hessian_matrix(topology, blocks, added_diagonal, in_workspace)
-        return SparseFactor(matrix) if self.sparse else DenseFactor(matrix, overwrite=True)
-
-    def _hessian_matrix(self, topology: _TopologyHessian, blocks, added_diagonal=None, in_workspace=False):
-        """Assemble topology Laplacian + the block-tridiagonal odometry part (+ a diagonal)."""
+    def _hessian_matrix(self, topology: _TopologyHessian, blocks, added_diagonal=None):
+        """The assembled sparse (CSC) matrix: topology Laplacian + odometry blocks (+ a diagonal)."""
         poses = self.n - 1
         diagonal, above = blocks[:poses], blocks[poses:]
-        shape = (self.dimension, self.dimension)
-        if self.sparse:
-            values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(),
-                                     topology.values])
-            rows = np.concatenate([self._block_rows, topology.rows])
-            cols = np.concatenate([self._block_cols, topology.cols])
-            matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=shape)
-            if added_diagonal is not None:
-                matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
-            return matrix
-        matrix = self._workspace if in_workspace else np.empty(shape)
-        matrix.fill(0.0)
-        matrix[topology.rows, topology.cols] = topology.values
-        grid = matrix.reshape(poses, 3, poses, 3)
-        index = np.arange(poses)
-        grid[index, :, index, :] += diagonal
-        grid[index[:-1], :, index[1:], :] += above
-        grid[index[1:], :, index[:-1], :] += np.swapaxes(above, 1, 2)
+        values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(), topology.values])
+        rows = np.concatenate([self._block_rows, topology.rows])
+        cols = np.concatenate([self._block_cols, topology.cols])
+        matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=(self.dimension, self.dimension))
         if added_diagonal is not None:
-            matrix.flat[:: self.dimension + 1] += added_diagonal
+            matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
         return matrix
 
     def _topology_hessian(self, labels) -> _TopologyHessian:
@@ -402,29 +402,63 @@ class PoseGraph:
         diagonal = np.zeros(self.dimension)
         on_diagonal = rows == cols
         diagonal[rows[on_diagonal]] = values[on_diagonal]
-        return _TopologyHessian(rows, cols, values, diagonal)
+        star_diagonal = np.zeros(self.dimension)
+        members = np.flatnonzero(sizes[1:] > 1)
+        for axis in (0, 1):
+            star_diagonal[3 * members + axis] = weight * sizes[1:][members]
+        set_labels = np.unique(free_labels[members])
+        low_rank = np.zeros((self.dimension, 2 * len(set_labels)))
+        column_of_set = np.searchsorted(set_labels, free_labels[members])
+        for axis in (0, 1):
+            low_rank[3 * members + axis, 2 * column_of_set + axis] = 1.0 / self.sigma_topology
+        return _TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank)
 
 
-class DenseFactor:
-    """Cholesky H = L L^T of a dense symmetric positive-definite matrix (``overwrite``: in its memory)."""
+class BandedLowRankFactor:
+    """H = A - U U^T with A symmetric positive definite of half-bandwidth 5 (lower band storage).
 
-    def __init__(self, matrix, overwrite: bool = False):
+    Raises ``ValueError`` when A or K = I - U^T A^-1 U is not positive definite
+    (then neither is H, given A is).
+    """
+
+    def __init__(self, band, low_rank):
+        self.band = band
+        self.low_rank = low_rank
         try:
-            # The transpose of a C-ordered symmetric matrix is the same matrix in Fortran order,
-            # which LAPACK can factorise without a copy.
-            self.lower = scipy.linalg.cholesky(matrix.T, lower=True, overwrite_a=overwrite, check_finite=False)
+            self.band_factor = scipy.linalg.cholesky_banded(band, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            raise ValueError("the pose-graph Hessian is not positive definite") from None
+        self.a_inverse_u = scipy.linalg.cho_solve_banded((self.band_factor, True), low_rank, check_finite=False)
+        capacitance = np.eye(low_rank.shape[1]) - low_rank.T @ self.a_inverse_u
+        try:
+            self.capacitance_factor = scipy.linalg.cholesky(capacitance, lower=True, check_finite=False)
         except np.linalg.LinAlgError:
             raise ValueError("the pose-graph Hessian is not positive definite") from None
 
     def solve(self, rhs) -> np.ndarray:
-        return scipy.linalg.cho_solve((self.lower, True), rhs, check_finite=False)
+        first = scipy.linalg.cho_solve_banded((self.band_factor, True), rhs, check_finite=False)
+        correction = scipy.linalg.cho_solve((self.capacitance_factor, True), self.low_rank.T @ first,
+                                            check_finite=False)
+        return first + self.a_inverse_u @ correction
 
     def log_det(self) -> float:
-        return 2.0 * float(np.sum(np.log(np.diag(self.lower))))
+        return 2.0 * float(np.sum(np.log(self.band_factor[0])) + np.sum(np.log(np.diag(self.capacitance_factor))))
 
-    def whiten_inverse(self, noise_columns) -> np.ndarray:
-        """Columns L^-T eps_s for columns eps_s of ``noise_columns`` (d, S): draws from N(0, H^-1)."""
-        return scipy.linalg.solve_triangular(self.lower, noise_columns, trans="T", lower=True, check_finite=False)
+    def sample(self, noise_columns) -> tuple[np.ndarray, np.ndarray]:
+        """Offsets delta_s ~ N(0, H^-1) as columns (d, S) from standard normal ``noise_columns``
+        (at least d + r rows), and 1/2 delta_s^T H delta_s for each."""
+        dimension, rank = self.band.shape[1], self.low_rank.shape[1]
+        offsets, info = scipy.linalg.lapack.dtbtrs(self.band_factor, noise_columns[:dimension], uplo="L", trans="T")
+        if info != 0:
+            raise ValueError(f"banded triangular solve failed (LAPACK info {info})")
+        if rank:
+            low_rank_noise = scipy.linalg.solve_triangular(
+                self.capacitance_factor, noise_columns[dimension:dimension + rank], trans="T", lower=True,
+                check_finite=False)
+            offsets = offsets + self.a_inverse_u @ low_rank_noise
+        projected = self.low_rank.T @ offsets
+        quadratic = np.einsum("ds,ds->s", offsets, _banded_symmetric_product(self.band, offsets))
+        return offsets, 0.5 * (quadratic - np.einsum("rs,rs->s", projected, projected))
 
 
 class SparseFactor:
@@ -453,10 +487,45 @@ class SparseFactor:
     def log_det(self) -> float:
         return float(np.sum(np.log(self.pivots)))
 
-    def whiten_inverse(self, noise_columns) -> np.ndarray:
-        """Columns G^-T eps_s for columns eps_s of ``noise_columns`` (d, S): draws from N(0, H^-1)."""
-        factor_times_noise = self.lower @ (noise_columns * np.sqrt(self.pivots)[:, None])
-        return self.lu.solve(factor_times_noise[self.lu.perm_c])  # P y: (P y)_i = y[perm_c[i]]
+    def sample(self, noise_columns) -> tuple[np.ndarray, np.ndarray]:
+        """Offsets G^-T eps_s ~ N(0, H^-1) as columns (d, S) from the first d rows of standard
+        normal ``noise_columns``, and 1/2 delta_s^T H delta_s = 1/2 |eps_s|^2 for each."""
+        noise = noise_columns[: len(self.pivots)]
+        factor_times_noise = self.lower @ (noise * np.sqrt(self.pivots)[:, None])
+        offsets = self.lu.solve(np.ascontiguousarray(factor_times_noise[self.lu.perm_c]))  # (P y)_i = y[perm_c[i]]
+        return offsets, 0.5 * np.einsum("ds,ds->s", noise, noise)
+
+
+def _banded_symmetric_product(band, vectors) -> np.ndarray:
+    """A @ vectors for A symmetric in lower band storage (band[k, j] = A[j + k, j])."""
+    product = band[0][:, None] * vectors
+    for offset in range(1, band.shape[0]):
+        coupling = band[offset, :-offset][:, None]
+        product[offset:] += coupling * vectors[:-offset]
+        product[:-offset] += coupling * vectors[offset:]
+    return product
+
+
+def _band_indices(poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the lower triangle of the 3x3 blocks goes in lower band storage.
+
+    Blocks are laid out as in ``PoseGraph._linearise`` (diagonal blocks, then the
+    blocks above the diagonal); returns (band row, band column, index into the
+    flattened blocks) for every stored entry.
+    """
+    rows, cols, sources = [], [], []
+    for a in range(3):
+        for b in range(a + 1):  # diagonal block (i, i): entry (3i + a, 3i + b)
+            pose = np.arange(poses)
+            rows.append(np.full(poses, a - b))
+            cols.append(3 * pose + b)
+            sources.append(pose * 9 + 3 * a + b)
+        for b in range(3):  # block (i + 1, i) = transpose of the block above: entry (3(i+1) + a, 3i + b)
+            pose = np.arange(poses - 1)
+            rows.append(np.full(poses - 1, 3 + a - b))
+            cols.append(3 * pose + b)
+            sources.append(9 * poses + pose * 9 + 3 * b + a)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(sources)
 
 
 def _tridiagonal_block_indices(poses: int) -> tuple[np.ndarray, np.ndarray]:
