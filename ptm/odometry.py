@@ -34,7 +34,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
@@ -124,8 +123,8 @@ class OdometryTerm:
     """log P(O | T) for one dataset: memoised, deterministic given the model's seed.
 
     Each miss is a Laplace fit warm-started from the last solved partition's
-    optimum (or from dead reckoning when that is lower in energy under the new
-    partition) and converged tightly, so the value does not depend on the
+    optimum, the most likely partition's optimum or dead reckoning, whichever
+    is lowest in energy under the new partition, and converged tightly, so the value does not depend on the
     start beyond ~1e-9 relative. A fit that does not converge within the
     iteration limit is *recorded* (``diagnostics()["failures"]``) and its
     estimate is still used: the Gaussian at the last iterate is a valid
@@ -157,6 +156,7 @@ class OdometryTerm:
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._last_solution = self._dead_reckoning
+        self._best_solution, self._best_value = self._dead_reckoning, -math.inf
         self._cache = BoundedCache(model.cache_size)
         self._evaluations = 0
         self._failures = 0
@@ -191,6 +191,8 @@ class OdometryTerm:
                 f"odometry log-likelihood of partition {tuple(labels.tolist())} is {evaluation.log_likelihood}"
             )
         self._last_solution = fit.x
+        if evaluation.log_likelihood > self._best_value:
+            self._best_solution, self._best_value = fit.x, evaluation.log_likelihood
         self._record(evaluation, time.perf_counter() - started)
         return evaluation
 
@@ -214,18 +216,22 @@ class OdometryTerm:
     # -- internals ------------------------------------------------------------------------------
 
     def _warm_start(self, labels) -> np.ndarray:
-        candidates = (self._last_solution, self._dead_reckoning)
+        """The lowest-energy start under ``labels`` among the last optimum, the optimum of the most
+        likely partition so far (a sampler's current state usually is one of the likely ones) and
+        dead reckoning."""
+        candidates = (self._last_solution, self._best_solution, self._dead_reckoning)
         energies = self.graph.energy(np.stack(candidates), labels)
         return candidates[int(np.argmin(energies))]
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         offsets, half_quadratic = fit.factor.sample(self._noise_columns)
-        samples = fit.x + offsets.T
+        poses = poses_from_vector(fit.x + offsets.T)
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         log_weights = (log_proposal_norm + half_quadratic
-                       - self.graph.energy(samples, labels) - self._penalties(samples, fit.x, labels))
-        estimate = float(logsumexp(log_weights) - math.log(len(log_weights)))
-        weights = np.exp(log_weights - log_weights.max())
+                       - self.graph.pose_energy(poses, labels) - self._penalties(poses, fit.x, labels))
+        largest = float(log_weights.max())
+        weights = np.exp(log_weights - largest)
+        estimate = largest + math.log(float(weights.mean()))
         ess = float(weights.sum() ** 2 / np.sum(weights**2))
         standard_error = float(weights.std() / (weights.mean() * math.sqrt(len(weights))))
         return OdometryEvaluation(
@@ -239,14 +245,15 @@ class OdometryTerm:
             solution=fit.x,
         )
 
-    def _penalties(self, samples, centre, labels) -> np.ndarray:
-        """Pen of every sample; pairs that no sample can bring within the radius are skipped exactly."""
+    def _penalties(self, poses, centre, labels) -> np.ndarray:
+        """Pen of every sample (``poses``: (S, N, 3)); pairs that no sample can bring within the
+        radius are skipped exactly."""
         if self.model.max_penalty == 0.0 or self.n < 2:
-            return np.zeros(len(samples))
+            return np.zeros(len(poses))
         different = labels[self._pair_first] != labels[self._pair_second]
         first, second = self._pair_first[different], self._pair_second[different]
         centre_xy = poses_from_vector(centre)[:, :2]
-        sample_xy = poses_from_vector(samples)[..., :2]
+        sample_xy = poses[..., :2]
         reach = np.sqrt(np.max(np.sum((sample_xy - centre_xy) ** 2, axis=-1), axis=0))
         centre_distance = np.linalg.norm(centre_xy[first] - centre_xy[second], axis=-1)
         # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j

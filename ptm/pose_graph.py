@@ -202,6 +202,7 @@ class _TopologyHessian:
     diagonal: np.ndarray  # (d,)
     star_diagonal: np.ndarray  # (d,): |S| / sigma_T^2 on the members of non-singleton sets
     low_rank: np.ndarray  # (d, r): per set and axis, 1 / sigma_T on the members' coordinates
+    low_rank_transpose: "_MemberSums"  # its transpose as sums over members (one entry per coordinate)
 
     def __matmul__(self, vector) -> np.ndarray:
         return np.bincount(self.rows, weights=self.values * vector[self.cols], minlength=len(vector))
@@ -255,7 +256,10 @@ class PoseGraph:
 
     def energy(self, states, labels) -> np.ndarray:
         """E of each state in ``states`` (shape (..., d)) under the partition ``labels``."""
-        poses = poses_from_vector(states)
+        return self.pose_energy(poses_from_vector(states), labels)
+
+    def pose_energy(self, poses, labels) -> np.ndarray:
+        """E of poses of shape (..., N, 3), pose 0 at the origin, under the partition ``labels``."""
         residuals = odometry_residuals(poses, self.odometry)
         weighted = (residuals[..., 0, None] * self.information[:, 0]
                     + residuals[..., 1, None] * self.information[:, 1]
@@ -373,7 +377,7 @@ class PoseGraph:
         band[0] += topology.star_diagonal
         if added_diagonal is not None:
             band[0] += added_diagonal
-        return BandedLowRankFactor(band, topology.low_rank)
+        return BandedLowRankFactor(band, topology.low_rank, topology.low_rank_transpose)
 
     def _hessian_matrix(self, topology: _TopologyHessian, blocks, added_diagonal=None):
         """The assembled sparse (CSC) matrix: topology Laplacian + odometry blocks (+ a diagonal)."""
@@ -411,7 +415,26 @@ class PoseGraph:
         column_of_set = np.searchsorted(set_labels, free_labels[members])
         for axis in (0, 1):
             low_rank[3 * members + axis, 2 * column_of_set + axis] = 1.0 / self.sigma_topology
-        return _TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank)
+        coordinates = np.concatenate([3 * members, 3 * members + 1])
+        columns = np.concatenate([2 * column_of_set, 2 * column_of_set + 1])
+        order = np.argsort(columns, kind="stable")
+        starts = np.searchsorted(columns[order], np.arange(low_rank.shape[1]))
+        return _TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank,
+                                _MemberSums(coordinates[order], starts, 1.0 / self.sigma_topology))
+
+
+@dataclass(frozen=True)
+class _MemberSums:
+    """U^T as a linear map: column c of U holds ``scale`` on coordinates[starts[c]:starts[c + 1]]."""
+
+    coordinates: np.ndarray
+    starts: np.ndarray
+    scale: float
+
+    def __matmul__(self, matrix) -> np.ndarray:
+        if not len(self.starts):
+            return np.zeros((0,) + np.shape(matrix)[1:])
+        return self.scale * np.add.reduceat(matrix[self.coordinates], self.starts, axis=0)
 
 
 class BandedLowRankFactor:
@@ -421,23 +444,24 @@ class BandedLowRankFactor:
     (then neither is H, given A is).
     """
 
-    def __init__(self, band, low_rank):
+    def __init__(self, band, low_rank, low_rank_transpose):
         self.band = band
-        self.low_rank = low_rank
+        self.low_rank_transpose = low_rank_transpose
         try:
             self.band_factor = scipy.linalg.cholesky_banded(band, lower=True, check_finite=False)
         except np.linalg.LinAlgError:
             raise ValueError("the pose-graph Hessian is not positive definite") from None
         self.a_inverse_u = scipy.linalg.cho_solve_banded((self.band_factor, True), low_rank, check_finite=False)
-        capacitance = np.eye(low_rank.shape[1]) - low_rank.T @ self.a_inverse_u
+        self.u_a_inverse_u = low_rank_transpose @ self.a_inverse_u  # I - K
         try:
-            self.capacitance_factor = scipy.linalg.cholesky(capacitance, lower=True, check_finite=False)
+            self.capacitance_factor = scipy.linalg.cholesky(np.eye(low_rank.shape[1]) - self.u_a_inverse_u,
+                                                            lower=True, check_finite=False)
         except np.linalg.LinAlgError:
             raise ValueError("the pose-graph Hessian is not positive definite") from None
 
     def solve(self, rhs) -> np.ndarray:
         first = scipy.linalg.cho_solve_banded((self.band_factor, True), rhs, check_finite=False)
-        correction = scipy.linalg.cho_solve((self.capacitance_factor, True), self.low_rank.T @ first,
+        correction = scipy.linalg.cho_solve((self.capacitance_factor, True), self.low_rank_transpose @ first,
                                             check_finite=False)
         return first + self.a_inverse_u @ correction
 
@@ -446,19 +470,26 @@ class BandedLowRankFactor:
 
     def sample(self, noise_columns) -> tuple[np.ndarray, np.ndarray]:
         """Offsets delta_s ~ N(0, H^-1) as columns (d, S) from standard normal ``noise_columns``
-        (at least d + r rows), and 1/2 delta_s^T H delta_s for each."""
-        dimension, rank = self.band.shape[1], self.low_rank.shape[1]
-        offsets, info = scipy.linalg.lapack.dtbtrs(self.band_factor, noise_columns[:dimension], uplo="L", trans="T")
+        (at least d + r rows), and 1/2 delta_s^T H delta_s for each.
+
+        delta = a + A^-1 U b with a = L_A^-T eps_1 and b = L_K^-T eps_2; with
+        G = U^T A^-1 U = I - K, delta^T H delta = |eps_1|^2 + 2 (U^T a).b + b.G b - |U^T a + G b|^2.
+        """
+        dimension, rank = self.band.shape[1], self.u_a_inverse_u.shape[0]
+        band_noise = noise_columns[:dimension]
+        offsets, info = scipy.linalg.lapack.dtbtrs(self.band_factor, band_noise, uplo="L", trans="T")
         if info != 0:
             raise ValueError(f"banded triangular solve failed (LAPACK info {info})")
+        quadratic = np.einsum("ds,ds->s", band_noise, band_noise)
         if rank:
-            low_rank_noise = scipy.linalg.solve_triangular(
-                self.capacitance_factor, noise_columns[dimension:dimension + rank], trans="T", lower=True,
-                check_finite=False)
-            offsets = offsets + self.a_inverse_u @ low_rank_noise
-        projected = self.low_rank.T @ offsets
-        quadratic = np.einsum("ds,ds->s", offsets, _banded_symmetric_product(self.band, offsets))
-        return offsets, 0.5 * (quadratic - np.einsum("rs,rs->s", projected, projected))
+            coupled = scipy.linalg.solve_triangular(self.capacitance_factor, noise_columns[dimension:dimension + rank],
+                                                    trans="T", lower=True, check_finite=False)
+            projected = self.low_rank_transpose @ offsets
+            mixed = self.u_a_inverse_u @ coupled
+            quadratic += (2.0 * np.einsum("rs,rs->s", projected, coupled) + np.einsum("rs,rs->s", coupled, mixed)
+                          - np.sum((projected + mixed) ** 2, axis=0))
+            offsets = offsets + self.a_inverse_u @ coupled
+        return offsets, 0.5 * quadratic
 
 
 class SparseFactor:
@@ -494,16 +525,6 @@ class SparseFactor:
         factor_times_noise = self.lower @ (noise * np.sqrt(self.pivots)[:, None])
         offsets = self.lu.solve(np.ascontiguousarray(factor_times_noise[self.lu.perm_c]))  # (P y)_i = y[perm_c[i]]
         return offsets, 0.5 * np.einsum("ds,ds->s", noise, noise)
-
-
-def _banded_symmetric_product(band, vectors) -> np.ndarray:
-    """A @ vectors for A symmetric in lower band storage (band[k, j] = A[j + k, j])."""
-    product = band[0][:, None] * vectors
-    for offset in range(1, band.shape[0]):
-        coupling = band[offset, :-offset][:, None]
-        product[offset:] += coupling * vectors[:-offset]
-        product[:-offset] += coupling * vectors[offset:]
-    return product
 
 
 def _band_indices(poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
