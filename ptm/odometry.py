@@ -210,7 +210,7 @@ class OdometryTerm:
             "factorisations_mean": self._factorisations_total / evaluations if evaluations else math.nan,
             "failures": self._failures,
             "evaluation_ms_mean": 1e3 * self._seconds / evaluations if evaluations else math.nan,
-            "linear_algebra": "sparse" if self.graph.sparse else "dense",
+            "linear_algebra": "sparse" if self.graph.sparse else "banded_low_rank",
         }
 
     # -- internals ------------------------------------------------------------------------------

@@ -301,3 +301,13 @@ def test_a_fit_that_does_not_converge_is_recorded_not_hidden():
 def test_poses_from_vector_fixes_the_first_pose_at_the_origin():
     poses = poses_from_vector(np.arange(6.0))
     np.testing.assert_array_equal(poses, [[0, 0, 0], [0, 1, 2], [3, 4, 5]])
+
+
+def test_a_single_detection_has_likelihood_one_and_two_detections_work():
+    single = ptm.Dataset(odometry=np.zeros((0, 3)), labels=[0])
+    assert ptm.OdometryModel().bind(single).log_likelihood([0]) == 0.0
+    pair = ptm.Dataset(odometry=[[1.0, 0.0, 0.1]], labels=[0, 0])
+    term = ptm.OdometryModel(max_penalty=0.0, n_importance=400).bind(pair)
+    evaluation = term.evaluate([0, 1])  # no tie, no penalty: the Gaussian normaliser of one step
+    assert evaluation.laplace == pytest.approx(0.5 * math.log((2 * math.pi) ** 3 * 0.1**4 * 0.05**2), abs=1e-9)
+    assert math.isfinite(term.log_likelihood([0, 0]))
