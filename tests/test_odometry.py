@@ -3,6 +3,10 @@
 Datasets are built here with numpy: a robot that drives a square loop and
 detects a landmark at every corner, its odometry composed on the SE(2)
 manifold with Gaussian noise on each relative-pose row.
+
+    python -m pytest tests/test_odometry.py -q
+    python -m pytest tests/test_odometry.py -q -k "finite_differences or penalty_decides"
+    python -m pytest tests/test_odometry.py -q -k "mcmc_matches or negative_control"
 """
 
 import math
