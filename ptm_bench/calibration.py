@@ -11,11 +11,14 @@ and names that a weakness (Section VIII). Here
 * the penalty radius D is ``penalty_radius_factor`` times the world's minimum
   spacing between distinct places (dataset meta ``min_place_spacing``), since
   the density prior says exactly that distinct places are not closer than
-  that, unless the config fixes D.
+  that, unless the config fixes D; likewise the tie sigma_T of detections of
+  one place is a multiple of the detector's radius (dataset meta
+  ``detection_radius``) unless the config fixes it.
 
     >>> datasets = calibration_datasets(cell)
     >>> model = fitted_appearance(datasets, evidence="corrected")
     >>> radius = penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, dataset.meta)
+    >>> sigma = topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, dataset.meta)
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import ptm
 
 from .datacache import dataset_for
 
-__all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius"]
+__all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "topology_sigma"]
 
 
 def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
@@ -47,9 +50,22 @@ def fitted_appearance(datasets, evidence: str) -> ptm.AppearanceModel:
 
 
 def penalty_radius(odometry_settings: dict, meta: dict) -> float:
-    """The configured penalty radius, or the factor times the world's minimum place spacing."""
-    if odometry_settings["penalty_radius"] is not None:
-        return float(odometry_settings["penalty_radius"])
-    if "min_place_spacing" not in meta:
-        raise ValueError("penalty_radius is not set and the dataset meta has no 'min_place_spacing' to derive it from")
-    return float(odometry_settings["penalty_radius_factor"]) * float(meta["min_place_spacing"])
+    """The configured penalty radius D, or ``penalty_radius_factor`` x the world's minimum place spacing."""
+    return _scaled_from_world(odometry_settings, "penalty_radius", meta, "min_place_spacing")
+
+
+def topology_sigma(odometry_settings: dict, meta: dict) -> float:
+    """The configured tie sigma_T, or ``sigma_topology_factor`` x the detector's radius.
+
+    Two detections of one place lie anywhere within the detection radius r of
+    it, so up to 2r apart: sigma_T of the order of r keeps such pairs plausible.
+    """
+    return _scaled_from_world(odometry_settings, "sigma_topology", meta, "detection_radius")
+
+
+def _scaled_from_world(settings: dict, key: str, meta: dict, meta_key: str) -> float:
+    if settings[key] is not None:
+        return float(settings[key])
+    if meta_key not in meta:
+        raise ValueError(f"odometry.{key} is not set and the dataset meta has no '{meta_key}' to derive it from")
+    return float(settings[f"{key}_factor"]) * float(meta[meta_key])

@@ -29,7 +29,7 @@ import ptm
 
 from . import scoring
 from .baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
-from .calibration import calibration_datasets, fitted_appearance, penalty_radius
+from .calibration import calibration_datasets, fitted_appearance, penalty_radius, topology_sigma
 from .datacache import dataset_for
 
 __all__ = ["INFERENCE_KEY", "run_cell", "build_posterior"]
@@ -76,10 +76,11 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
     if "odometry" in settings["models"]:
         odometry = settings["odometry"]
         used["penalty_radius"] = penalty_radius(odometry, dataset.meta)
+        used["sigma_topology"] = topology_sigma(odometry, dataset.meta)
         used["max_penalty"] = float(odometry["max_penalty"])
         models.append(ptm.OdometryModel(
             sigma_xy=odometry["sigma_xy"], sigma_theta=odometry["sigma_theta"],
-            sigma_topology=odometry["sigma_topology"], penalty_radius=used["penalty_radius"],
+            sigma_topology=used["sigma_topology"], penalty_radius=used["penalty_radius"],
             max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
         ))
     if "appearance" in settings["models"]:

@@ -56,10 +56,10 @@ DEFAULTS = {
     },
     "inference": {
         "method": "mcmc",
-        "n_samples": 5000,
-        "burn_in": 500,
+        "n_samples": 20000,
+        "burn_in": 2000,
         "thin": 1,
-        "chains": 2,
+        "chains": 4,
         "prior_rate": None,  # None: the number of places of the world (generator meta "places")
         "delayed_acceptance": True,
         "exact_max_n": 10,
@@ -68,7 +68,8 @@ DEFAULTS = {
     "odometry": {
         "sigma_xy": 0.1,
         "sigma_theta": 0.05,
-        "sigma_topology": 0.3,
+        "sigma_topology": None,  # None: sigma_topology_factor x the detector's radius (meta "detection_radius")
+        "sigma_topology_factor": 2.0,
         "penalty_radius": None,  # None: penalty_radius_factor x the world's min_place_spacing
         "penalty_radius_factor": 0.75,
         "max_penalty": 100.0,
