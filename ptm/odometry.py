@@ -50,7 +50,8 @@ def landmark_penalty(positions, pairs, penalty_radius: float, max_penalty: float
     cannot come within the radius: they contribute exactly 0).
     """
     first, second = pairs
-    distances = np.linalg.norm(positions[..., first, :] - positions[..., second, :], axis=-1)
+    separation = positions[..., first, :] - positions[..., second, :]
+    distances = np.hypot(separation[..., 0], separation[..., 1])
     closeness = np.clip(1.0 - distances / penalty_radius, 0.0, None)
     return max_penalty * np.sum(closeness**3, axis=-1)
 
@@ -254,8 +255,10 @@ class OdometryTerm:
         first, second = self._pair_first[different], self._pair_second[different]
         centre_xy = poses_from_vector(centre)[:, :2]
         sample_xy = poses[..., :2]
-        reach = np.sqrt(np.max(np.sum((sample_xy - centre_xy) ** 2, axis=-1), axis=0))
-        centre_distance = np.linalg.norm(centre_xy[first] - centre_xy[second], axis=-1)
+        offsets = sample_xy - centre_xy
+        reach = np.sqrt(np.max(offsets[..., 0] ** 2 + offsets[..., 1] ** 2, axis=0))
+        separation = centre_xy[first] - centre_xy[second]
+        centre_distance = np.hypot(separation[:, 0], separation[:, 1])
         # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j
         may_touch = centre_distance - reach[first] - reach[second] < self.model.penalty_radius
         pairs = (first[may_touch], second[may_touch])

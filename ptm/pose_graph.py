@@ -43,7 +43,6 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .dataset import wrap_angle
 
 __all__ = [
     "PoseGraph",
@@ -94,7 +93,11 @@ def poses_from_vector(x) -> np.ndarray:
 
 
 def odometry_residuals(poses, odometry) -> np.ndarray:
-    """r_k = (p_{k-1}^-1 o p_k) - o_k for poses of shape (..., N, 3); returns (..., N-1, 3)."""
+    """r_k = (p_{k-1}^-1 o p_k) - o_k for poses of shape (..., N, 3); returns (..., N-1, 3).
+
+    The angle residual is wrapped to [-pi, pi) (the energy is even in it, so the
+    end point does not matter).
+    """
     previous, current = poses[..., :-1, :], poses[..., 1:, :]
     cos, sin = np.cos(previous[..., 2]), np.sin(previous[..., 2])
     dx = current[..., 0] - previous[..., 0]
@@ -102,7 +105,8 @@ def odometry_residuals(poses, odometry) -> np.ndarray:
     residuals = np.empty(np.broadcast_shapes(current.shape, np.shape(odometry)))
     residuals[..., 0] = cos * dx + sin * dy - odometry[:, 0]
     residuals[..., 1] = -sin * dx + cos * dy - odometry[:, 1]
-    residuals[..., 2] = wrap_angle(current[..., 2] - previous[..., 2] - odometry[:, 2])
+    angle = current[..., 2] - previous[..., 2] - odometry[:, 2] + np.pi
+    residuals[..., 2] = np.remainder(angle, 2.0 * np.pi) - np.pi
     return residuals
 
 
@@ -235,6 +239,7 @@ class PoseGraph:
         self.odometry = np.asarray(odometry, dtype=float)
         self.sqrt_information = np.asarray(sqrt_information, dtype=float)
         self.information = np.swapaxes(self.sqrt_information, 1, 2) @ self.sqrt_information
+        self._information_flat = self.information.ravel()  # sum_k r_k^T W_k r_k = vec(r r^T) . vec(W)
         self.sigma_topology = float(sigma_topology)
         self.n = len(self.odometry) + 1
         self.dimension = 3 * (self.n - 1)
@@ -261,10 +266,8 @@ class PoseGraph:
     def pose_energy(self, poses, labels) -> np.ndarray:
         """E of poses of shape (..., N, 3), pose 0 at the origin, under the partition ``labels``."""
         residuals = odometry_residuals(poses, self.odometry)
-        weighted = (residuals[..., 0, None] * self.information[:, 0]
-                    + residuals[..., 1, None] * self.information[:, 1]
-                    + residuals[..., 2, None] * self.information[:, 2])  # Sigma_k^-1 r_k
-        odometry_energy = 0.5 * np.sum(weighted * residuals, axis=(-2, -1))
+        outer = residuals[..., :, None] * residuals[..., None, :]  # r_k r_k^T, (..., N-1, 3, 3)
+        odometry_energy = 0.5 * (outer.reshape(*outer.shape[:-3], -1) @ self._information_flat)
         return odometry_energy + clique_pair_energy(poses[..., :2], labels, self.sigma_topology)
 
     def fit(self, start, labels) -> LaplaceFit:

@@ -101,8 +101,14 @@ def test_second_order_blocks_match_finite_differences_of_the_jacobian():
                 np.testing.assert_allclose(analytic_column, numeric, atol=1e-6)
 
 
-def test_energy_gradient_and_newton_hessian_match_finite_differences():
+CORRELATED_COVARIANCE = np.array([[0.02, 0.005, 0.002], [0.005, 0.01, -0.001], [0.002, -0.001, 0.004]])
+
+
+@pytest.mark.parametrize("covariance", [None, CORRELATED_COVARIANCE], ids=["diagonal", "correlated"])
+def test_energy_gradient_and_newton_hessian_match_finite_differences(covariance):
     dataset = square_loop_dataset(6, sigma_xy=0.3, sigma_theta=0.2)
+    if covariance is not None:
+        dataset = dataset.replace(odometry_cov=np.broadcast_to(covariance, (5, 3, 3)))
     graph = ptm.OdometryModel(0.1, 0.05, 0.3, 2.5, 0.0).bind(dataset).graph
     labels = np.array([0, 1, 2, 3, 0, 1])
     x = graph.dead_reckoning() + np.random.default_rng(5).normal(0.0, 0.3, graph.dimension)
