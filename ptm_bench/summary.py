@@ -55,6 +55,7 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             "lc_f1": group["lc_f1"].mean(),
             "lc_ap": group["lc_ap"].mean(),
             "expected_places": group["expected_places"].mean(),
+            "map_places": group["map_places"].mean(),
             "true_places": group["true_places"].mean(),
             "wall_s": group["wall_s"].mean(),
         })
@@ -100,7 +101,7 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
     if len(summary):
         columns = CONDITION + ["variant", "seeds", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median",
-                               "map_correct", "ari", "lc_f1", "lc_ap", "expected_places", "true_places", "wall_s"]
+                               "map_correct", "ari", "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
     if len(failed):
         lines += ["## Failed cells", "", markdown_table(failed[["cell_id", "error"]]), ""]
@@ -128,6 +129,7 @@ def _paper_comparison(experiment: Experiment, summary: pd.DataFrame) -> pd.DataF
                 "paper gt rank": reported.get("gt_rank", math.nan),
                 "ours median rank": row["gt_rank_median"],
                 "ours MAP = truth": row["map_correct"],
+                "ours E[places] / true": f"{row['expected_places']:.2f} / {row['true_places']:g}",
                 "paper note": reported.get("note", ""),
             })
     return pd.DataFrame(rows)
