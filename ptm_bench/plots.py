@@ -28,7 +28,17 @@ from ptm.dataset import atomic_write  # noqa: E402
 
 from .baselines import dead_reckoning  # noqa: E402
 
-__all__ = ["mass_heatmap", "sampler_traces", "top_topologies", "trajectories"]
+__all__ = ["mass_heatmap", "sampler_traces", "top_topologies", "topology_string", "trajectories"]
+
+_DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
+
+
+def topology_string(labels) -> str:
+    """A compact label string, one character per detection (0-9, then a-z); comma-separated past 36 places."""
+    labels = [int(label) for label in labels]
+    if max(labels) < len(_DIGITS):
+        return "".join(_DIGITS[label] for label in labels)
+    return ",".join(str(label) for label in labels)
 
 _PLACE_COLOURS = plt.get_cmap("tab20")
 
@@ -85,7 +95,7 @@ def top_topologies(positions, topologies, truth, path: Path, title: str = "") ->
         for index, (x, y) in enumerate(positions):
             axes.annotate(str(index), (x, y), textcoords="offset points", xytext=(3, 3), fontsize=6)
         marker = " (ground truth)" if tuple(labels) == truth else ""
-        axes.set_title(f"p = {probability:.3f}{marker}\n{''.join(str(x) for x in labels)}", fontsize=8)
+        axes.set_title(f"p = {probability:.3f}{marker}\n{topology_string(labels)}", fontsize=8)
         axes.set_aspect("equal", adjustable="datalim")
         axes.set_xticks([])
         axes.set_yticks([])
