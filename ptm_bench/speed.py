@@ -33,6 +33,7 @@ SECTIONS = {
     "core": "ptm_bench.speed:core_rows",
     "simulator": "ptm_bench.bench_simulator:simulator_rows",
     "odometry": "ptm_bench.bench_odometry:odometry_rows",
+    "evaluation": "ptm_bench.bench_evaluation:evaluation_rows",
 }
 
 
