@@ -11,8 +11,9 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   that were running, and a rerun skips every cell already in the table
   (``retry_failed=True`` reruns the ones that ended in an error).
 * A cell that raises is recorded with its error and the sweep goes on.
-* Locally every cell runs in its own forked process (at most ``workers`` at a
-  time), so a worker that dies — killed, out of memory, a crash in C code —
+* Locally every cell runs in its own freshly *spawned* process (at most
+  ``workers`` at a time; not forked: a fork of a process that has already
+  started MuJoCo's EGL renderer or a thread pool can deadlock), so a worker that dies — killed, out of memory, a crash in C code —
   is known by cell: the cell is retried up to ``max_attempts`` times, then
   recorded as failed. Never lost.
 * With ``scheduler`` (a Dask distributed address) cells become Dask tasks;
@@ -160,7 +161,7 @@ def _guarded(cell_fn: CellFn, cell: dict) -> dict:
         return _failed(f"{type(error).__name__}: {error} ({where})", attempts=1)
 
 
-# -- local: one forked process per cell ---------------------------------------------------------
+# -- local: one spawned process per cell ---------------------------------------------------------
 
 
 def _child(cell_fn: CellFn, cell: dict, connection) -> None:
@@ -171,7 +172,7 @@ def _child(cell_fn: CellFn, cell: dict, connection) -> None:
 def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator[tuple[dict, dict]]:
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    context = multiprocessing.get_context("fork")
+    context = multiprocessing.get_context("spawn")
     queue = deque((cell, 1) for cell in cells)
     running: dict = {}
     try:
