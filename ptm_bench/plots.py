@@ -3,7 +3,7 @@
 * :func:`trajectories` — the true path and the dead-reckoned odometry path
   (paper Figs. 9, 12, 15), detections coloured by their true place.
 * :func:`top_topologies` — the most probable topologies drawn as graphs over
-  the detections at their true positions, detections of one place joined,
+  the detections (at their dead-reckoned positions), detections of one place joined,
   titled with their probabilities (paper Figs. 10, 13, 14, 17, 18).
 * :func:`mass_heatmap` — mean posterior mass on the ground truth over
   aliasing x noise, one panel per model variant.

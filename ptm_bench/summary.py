@@ -26,6 +26,7 @@ import pandas as pd
 from ptm.dataset import atomic_write
 
 from . import plots
+from .baselines import dead_reckoning
 from .datacache import dataset_for
 from .experiment import Experiment
 
@@ -150,7 +151,8 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
     figures = [(f"Detections and odometry: {where}",
                 plots.trajectories(dataset, results_dir / "trajectory.png", title=where))]
     truth = tuple(json.loads(first["true_labels"]))
-    positions = dataset.true_poses if dataset.true_poses is not None else np.zeros((dataset.n, 2))
+    # Drawn where odometry puts the detections, as the paper draws them: merged sets show as edges.
+    positions = dead_reckoning(dataset.odometry) if dataset.odometry is not None else np.zeros((dataset.n, 2))
     for _, row in condition.iterrows():
         slug = re.sub(r"[^A-Za-z0-9]+", "_", row["variant"]).strip("_")
         topologies = [(tuple(labels), probability) for labels, probability in json.loads(row["top5"])]

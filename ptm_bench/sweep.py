@@ -47,7 +47,7 @@ from ptm.dataset import atomic_write
 __all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep"]
 
 #: Column names that measure the machine, not the result: they differ between two runs of one config.
-TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|attempts)$")
+TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|_ms|_ms_mean|attempts)$")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 _BOOKKEEPING_COLUMNS = ("status", "error", "attempts")  # written last, after the cell's values and results
