@@ -11,10 +11,11 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   that were running, and a rerun skips every cell already in the table
   (``retry_failed=True`` reruns the ones that ended in an error).
 * A cell that raises is recorded with its error and the sweep goes on.
-* Locally every cell runs in its own freshly *spawned* process (at most
-  ``workers`` at a time; not forked: a fork of a process that has already
-  started MuJoCo's EGL renderer or a thread pool can deadlock), so a worker that dies — killed, out of memory, a crash in C code —
-  is known by cell: the cell is retried up to ``max_attempts`` times, then
+* Locally every cell runs in its own process (at most ``workers`` at a
+  time), forked from a clean fork server rather than from this process (a
+  fork of a process that has started MuJoCo's EGL renderer or a thread pool
+  can deadlock), so a worker that dies — killed, out of memory, a crash in C
+  code — is known by cell: the cell is retried up to ``max_attempts`` times, then
   recorded as failed. Never lost.
 * With ``scheduler`` (a Dask distributed address) cells become Dask tasks;
   Dask reschedules the tasks of a lost worker and reports ``KilledWorker``
@@ -51,6 +52,7 @@ TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|_ms|_ms_mean|attempts)$")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 _BOOKKEEPING_COLUMNS = ("status", "error", "attempts")  # written last, after the cell's values and results
+_PRELOADED_MODULES = ["numpy", "scipy.optimize", "pandas", "ptm", "ptm_bench.cell"]
 
 CellFn = Callable[[dict], dict]
 
@@ -161,7 +163,7 @@ def _guarded(cell_fn: CellFn, cell: dict) -> dict:
         return _failed(f"{type(error).__name__}: {error} ({where})", attempts=1)
 
 
-# -- local: one spawned process per cell ---------------------------------------------------------
+# -- local: one process per cell, from the fork server ---------------------------------------------------------
 
 
 def _child(cell_fn: CellFn, cell: dict, connection) -> None:
@@ -172,7 +174,11 @@ def _child(cell_fn: CellFn, cell: dict, connection) -> None:
 def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator[tuple[dict, dict]]:
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    context = multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    # The fork server is a fresh interpreter that never renders; forking cells from it is safe
+    # (unlike forking this process, which may have started MuJoCo's EGL renderer) and, with the
+    # heavy modules preloaded there, much cheaper than spawning a new interpreter per cell.
+    context.set_forkserver_preload(_PRELOADED_MODULES)
     queue = deque((cell, 1) for cell in cells)
     running: dict = {}
     try:

@@ -14,8 +14,6 @@ import pytest
 
 from ptm_bench import scoring, sweep
 
-CALL_LOG_ENV = "PTM_TEST_SWEEP_CALL_LOG"
-
 
 def synthetic_cell(cell: dict) -> dict:
     """Cluster noisy 2-D signatures of 4 places by a distance threshold and score the answer."""
@@ -27,7 +25,7 @@ def synthetic_cell(cell: dict) -> dict:
     for index, signature in enumerate(signatures):
         distances = np.linalg.norm(signatures[:index] - signature, axis=1)
         labels.append(labels[int(np.argmin(distances))] if index and distances.min() < 1.0 else index)
-    log = os.environ.get(CALL_LOG_ENV)
+    log = cell.get("inputs", {}).get("call_log")  # nested, so not a table column
     if log:
         with open(log, "a") as handle:
             handle.write(cell["cell_id"] + "\n")
@@ -86,8 +84,8 @@ def test_a_resumed_sweep_equals_an_uninterrupted_one_and_skips_finished_cells(tm
     assert len(finished) == 3
 
     log = tmp_path / "calls.log"
-    monkeypatch.setenv(CALL_LOG_ENV, str(log))
-    resumed = sweep.run_sweep(cells, synthetic_cell, interrupted_path, workers=2, progress=False)
+    logged_cells = [{**cell, "inputs": {"call_log": str(log)}} for cell in cells]
+    resumed = sweep.run_sweep(logged_cells, synthetic_cell, interrupted_path, workers=2, progress=False)
     rerun = set(log.read_text().split())
     assert rerun == {cell["cell_id"] for cell in cells} - finished
     pd.testing.assert_frame_equal(sweep.comparable(resumed), sweep.comparable(whole))
@@ -102,12 +100,12 @@ def test_a_cell_that_raises_is_recorded_and_the_sweep_goes_on(tmp_path):
     assert table.loc[table["seed"] != 1, "gt_mass"].notna().all()
 
 
-def test_retry_failed_reruns_only_the_failed_cells(tmp_path, monkeypatch):
+def test_retry_failed_reruns_only_the_failed_cells(tmp_path):
     path = tmp_path / "cells.csv"
     sweep.run_sweep(make_cells(seeds=range(3)), raising_cell, path, workers=2, progress=False)
     log = tmp_path / "calls.log"
-    monkeypatch.setenv(CALL_LOG_ENV, str(log))
-    table = sweep.run_sweep(make_cells(seeds=range(3)), synthetic_cell, path, workers=2, retry_failed=True, progress=False)
+    cells = make_cells(seeds=range(3), inputs={"call_log": str(log)})
+    table = sweep.run_sweep(cells, synthetic_cell, path, workers=2, retry_failed=True, progress=False)
     assert sorted(log.read_text().split()) == ["noise=0.1|seed=1", "noise=0.8|seed=1"]
     assert (table["status"] == "ok").all()
 
