@@ -58,9 +58,17 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             "expected_places": group["expected_places"].mean(),
             "map_places": group["map_places"].mean(),
             "true_places": group["true_places"].mean(),
+            # Chains that disagree (split R-hat of log P above 1.1) make the masses above unreliable.
+            "rhat_over_1.1": _fraction_above(group, "diag_rhat_log_prob", 1.1),
             "wall_s": group["wall_s"].mean(),
         })
     return pd.DataFrame(rows)
+
+
+def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
+    """Fraction of the rows where ``column`` exceeds ``limit``, among those that have it; NaN if none do."""
+    values = group[column].dropna() if column in group else pd.Series(dtype=float)
+    return float((values > limit).mean()) if len(values) else math.nan
 
 
 def markdown_table(frame: pd.DataFrame) -> str:
@@ -95,14 +103,16 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         f"{experiment.sweep['calibration_seeds']}. Rows are means over seeds unless named otherwise; "
         "`gt_mass` is the posterior probability of the ground-truth topology, `gt_rank_median` its median rank "
         "(1 = most probable), `map_correct` the fraction of seeds whose MAP is the truth, `lc_*` loop-closure "
-        "scores of the co-assignment matrix.",
+        "scores of the co-assignment matrix, `rhat_over_1.1` the fraction of seeds whose chains disagree "
+        "(split R-hat of log P > 1.1: the masses of those runs are not converged).",
         "",
     ]
     if experiment.paper and len(summary):
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
     if len(summary):
         columns = CONDITION + ["variant", "seeds", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median",
-                               "map_correct", "ari", "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "wall_s"]
+                               "map_correct", "ari", "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1",
+                   "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
     if len(failed):
         lines += ["## Failed cells", "", markdown_table(failed[["cell_id", "error"]]), ""]
