@@ -89,12 +89,18 @@ class AppearanceModel:
         return AppearanceTerm(self, dataset.signatures)
 
     @classmethod
-    def fit(cls, datasets, evidence: str = "corrected") -> "AppearanceModel":
+    def fit(cls, datasets, evidence: str = "corrected", max_alpha: float = 10.0) -> "AppearanceModel":
         """Empirical Bayes: per-component (mu, kappa, alpha, beta) maximising the evidence
         of the ground-truth partitions of labelled calibration datasets.
 
+        ``max_alpha`` bounds the inverse-gamma shape. Unbounded, a few
+        calibration runs whose places share one noise level drive alpha to the
+        thousands (s2 known exactly); the predictive of a new visit is then
+        practically Normal and one unusual visit is split off its place. With
+        alpha <= 10 the predictive stays a Student t with <= 20 degrees of freedom.
         Never fit on the data you then score: use separate calibration runs.
         """
+        max_alpha = positive("max_alpha", max_alpha)
         datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
         if not datasets:
             raise ValueError("fit needs at least one labelled dataset")
@@ -108,7 +114,8 @@ class AppearanceModel:
         if len(widths) != 1:
             raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
         width = widths.pop()
-        fitted = np.array([_fit_component([group[:, k] for group in groups], evidence) for k in range(width)])
+        fitted = np.array([_fit_component([group[:, k] for group in groups], evidence, max_alpha)
+                           for k in range(width)])
         mu, kappa, alpha, beta = fitted.T
         return cls(mu, kappa, alpha, beta, evidence=evidence)
 
@@ -180,14 +187,15 @@ def _component_evidence(params: np.ndarray, groups: list[np.ndarray], evidence: 
     return total
 
 
-def _fit_component(groups: list[np.ndarray], evidence: str) -> tuple[float, float, float, float]:
+def _fit_component(groups: list[np.ndarray], evidence: str, max_alpha: float) -> tuple[float, float, float, float]:
     values = np.concatenate(groups)
     spread = float(np.var(values)) if values.size > 1 else 1.0
     within = [np.var(group) for group in groups if group.size > 1]
     noise = float(np.mean(within)) if within else spread
     noise = max(noise, 1e-12 + 1e-6 * spread, 1e-12)
-    start = np.array([float(values.mean()), 0.0, math.log(3.0), math.log(2.0 * noise)])
-    bounds = [(None, None), (math.log(1e-4), math.log(1e4)), (math.log(0.5), math.log(1e4)),
+    start_alpha = min(3.0, max_alpha)
+    start = np.array([float(values.mean()), 0.0, math.log(start_alpha), math.log(max(start_alpha - 1.0, 0.5) * noise)])
+    bounds = [(None, None), (math.log(1e-4), math.log(1e4)), (math.log(min(0.5, max_alpha)), math.log(max_alpha)),
               (start[3] - 25.0, start[3] + 25.0)]
     result = minimize(lambda p: -_component_evidence(p, groups, evidence), start,
                       method="L-BFGS-B", bounds=bounds)
