@@ -96,10 +96,14 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     inference = cell["settings"]["inference"]
     posterior, used = build_posterior(cell, dataset)
     sampler_seed, _ = _inference_seeds(cell["seed"])
+    moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
     if inference["method"] == "exact":
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
+    elif inference["method"] == "tempered":
+        result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
+                                   burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
+                                   moves=moves, delayed_acceptance=inference["delayed_acceptance"])
     else:
-        moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], moves=moves,
                           delayed_acceptance=inference["delayed_acceptance"])

@@ -38,7 +38,7 @@ __all__ = ["DEFAULTS", "MODEL_NAMES", "BASELINE_NAMES", "Experiment", "describe"
 
 MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
-METHODS = ("mcmc", "exact")
+METHODS = ("mcmc", "tempered", "exact")
 HYPERPARAMETER_SOURCES = ("fit", "paper")
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 WORLD_GENERATORS = ("corridor_grid",)
@@ -64,6 +64,7 @@ DEFAULTS = {
         "delayed_acceptance": True,
         "exact_max_n": 10,
         "moves": "default",  # "default" (split/merge + Gibbs) or "paper" (split/merge only)
+        "temperatures": [1.0, 0.5, 0.25, 0.12, 0.06, 0.03],  # inverse temperatures of method "tempered"
     },
     "odometry": {
         "sigma_xy": 0.1,

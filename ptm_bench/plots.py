@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 from pathlib import Path
 
 import matplotlib
@@ -100,7 +102,7 @@ def top_topologies(positions, topologies, truth, path: Path, title: str = "") ->
         axes.set_xticks([])
         axes.set_yticks([])
     if title:
-        figure.suptitle(title, fontsize=10)
+        figure.suptitle(textwrap.fill(title, width=max(30, int(14 * count))), fontsize=10)
     return _save(figure, path)
 
 
