@@ -92,20 +92,26 @@ def poses_from_vector(x) -> np.ndarray:
     return np.concatenate([origin, poses], axis=-2)
 
 
+def _step_frames(poses):
+    """cos and sin of each step's starting heading, and the step's translation (u, v) in that frame."""
+    previous, current = poses[..., :-1, :], poses[..., 1:, :]
+    cos, sin = np.cos(previous[..., 2]), np.sin(previous[..., 2])
+    dx = current[..., 0] - previous[..., 0]
+    dy = current[..., 1] - previous[..., 1]
+    return cos, sin, cos * dx + sin * dy, -sin * dx + cos * dy
+
+
 def odometry_residuals(poses, odometry) -> np.ndarray:
     """r_k = (p_{k-1}^-1 o p_k) - o_k for poses of shape (..., N, 3); returns (..., N-1, 3).
 
     The angle residual is wrapped to [-pi, pi) (the energy is even in it, so the
     end point does not matter).
     """
-    previous, current = poses[..., :-1, :], poses[..., 1:, :]
-    cos, sin = np.cos(previous[..., 2]), np.sin(previous[..., 2])
-    dx = current[..., 0] - previous[..., 0]
-    dy = current[..., 1] - previous[..., 1]
-    residuals = np.empty(np.broadcast_shapes(current.shape, np.shape(odometry)))
-    residuals[..., 0] = cos * dx + sin * dy - odometry[:, 0]
-    residuals[..., 1] = -sin * dx + cos * dy - odometry[:, 1]
-    angle = current[..., 2] - previous[..., 2] - odometry[:, 2] + np.pi
+    _, _, u, v = _step_frames(poses)
+    residuals = np.empty(np.broadcast_shapes(poses[..., 1:, :].shape, np.shape(odometry)))
+    residuals[..., 0] = u - odometry[:, 0]
+    residuals[..., 1] = v - odometry[:, 1]
+    angle = poses[..., 1:, 2] - poses[..., :-1, 2] - odometry[:, 2] + np.pi
     residuals[..., 2] = np.remainder(angle, 2.0 * np.pi) - np.pi
     return residuals
 
@@ -117,13 +123,8 @@ def odometry_jacobian_blocks(poses) -> tuple[np.ndarray, np.ndarray]:
     frame as (u, v): d(u, v)/d t_k = R^T, d(u, v)/d t_{k-1} = -R^T,
     d(u, v)/d theta_{k-1} = (v, -u), and the angle residual has slopes +1 / -1.
     """
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    dx = current[:, 0] - previous[:, 0]
-    dy = current[:, 1] - previous[:, 1]
-    u = cos * dx + sin * dy
-    v = -sin * dx + cos * dy
-    steps = len(previous)
+    cos, sin, u, v = _step_frames(poses)
+    steps = len(cos)
     wrt_current = np.zeros((steps, 3, 3))
     wrt_current[:, 0, 0] = cos
     wrt_current[:, 0, 1] = sin
@@ -145,20 +146,15 @@ def odometry_second_order_blocks(poses, multipliers) -> tuple[np.ndarray, np.nda
     and the opposite for t_{k-1}. Returns the (p_{k-1}, p_{k-1}) and the
     (p_{k-1}, p_k) blocks; the (p_k, p_k) block is zero.
     """
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    dx = current[:, 0] - previous[:, 0]
-    dy = current[:, 1] - previous[:, 1]
-    u = cos * dx + sin * dy
-    v = -sin * dx + cos * dy
+    cos, sin, u, v = _step_frames(poses)
     m_u, m_v = multipliers[:, 0], multipliers[:, 1]
     theta_x_current = -m_u * sin - m_v * cos
     theta_y_current = m_u * cos - m_v * sin
-    wrt_previous = np.zeros((len(previous), 3, 3))
+    wrt_previous = np.zeros((len(cos), 3, 3))
     wrt_previous[:, 2, 2] = -m_u * u - m_v * v
     wrt_previous[:, 2, 0] = wrt_previous[:, 0, 2] = -theta_x_current
     wrt_previous[:, 2, 1] = wrt_previous[:, 1, 2] = -theta_y_current
-    between = np.zeros((len(previous), 3, 3))
+    between = np.zeros((len(cos), 3, 3))
     between[:, 2, 0] = theta_x_current
     between[:, 2, 1] = theta_y_current
     return wrt_previous, between
