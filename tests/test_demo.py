@@ -1,0 +1,19 @@
+"""The README's main command: ``ptm-bench demo`` runs end to end and reports what it promises."""
+
+from ptm_bench.cli import main
+
+
+def test_demo_prints_scores_and_writes_figures(tmp_path, capsys):
+    assert main(["demo", "--world", "short_loop", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    for method in ("odometry", "odometry+appearance", "greedy_odometry", "appearance_threshold"):
+        assert f"\n{method} " in printed
+    assert "ground truth" in printed
+    written = {path.name for path in tmp_path.iterdir()}
+    assert {"summary.md", "trajectory.png"} <= written
+    assert any(name.startswith("top5_") for name in written)
+
+
+def test_demo_refuses_an_unknown_world(tmp_path, capsys):
+    assert main(["demo", "--world", "atlantis", "--out", str(tmp_path)]) == 2
+    assert "atlantis" in capsys.readouterr().err
