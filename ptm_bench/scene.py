@@ -214,31 +214,26 @@ def _merge_runs(wall, looks, height):
     key = np.stack([owner, np.where(owner < 0, 0, sector), np.round(height * 1000).astype(int)], axis=-1)
     used = np.zeros(wall.shape, dtype=bool)
     boxes = []
-    for row in range(wall.shape[0]):
+    for row, first, last in _runs_along_rows(wall, key, minimum=2):
+        boxes.append(((row, first, row, last), key[row, first]))
+        used[row, first:last + 1] = True
+    for col, first, last in _runs_along_rows((wall & ~used).T, key.transpose(1, 0, 2), minimum=1):
+        boxes.append(((first, col, last, col), key[first, col]))
+    for cells, (place_id, place_sector, milli_height) in boxes:
+        yield cells, (int(place_id), int(place_sector), milli_height / 1000)
+
+
+def _runs_along_rows(mask, key, minimum):
+    """(row, first, last) of each maximal run of set cells with equal ``key`` along the rows of ``mask``."""
+    for row in range(mask.shape[0]):
         col = 0
-        while col < wall.shape[1]:
-            if not wall[row, col]:
+        while col < mask.shape[1]:
+            if not mask[row, col]:
                 col += 1
                 continue
             end = col
-            while end + 1 < wall.shape[1] and wall[row, end + 1] and np.array_equal(key[row, end + 1], key[row, col]):
+            while end + 1 < mask.shape[1] and mask[row, end + 1] and np.array_equal(key[row, end + 1], key[row, col]):
                 end += 1
-            if end > col:
-                boxes.append(((row, col, row, end), key[row, col]))
-                used[row, col:end + 1] = True
+            if end - col + 1 >= minimum:
+                yield row, col, end
             col = end + 1
-    remaining = wall & ~used
-    for col in range(wall.shape[1]):
-        row = 0
-        while row < wall.shape[0]:
-            if not remaining[row, col]:
-                row += 1
-                continue
-            end = row
-            while (end + 1 < wall.shape[0] and remaining[end + 1, col]
-                   and np.array_equal(key[end + 1, col], key[row, col])):
-                end += 1
-            boxes.append(((row, col, end, col), key[row, col]))
-            row = end + 1
-    for cells, (place_id, place_sector, milli_height) in boxes:
-        yield cells, (int(place_id), int(place_sector), milli_height / 1000)
