@@ -185,7 +185,8 @@ class OdometryTerm:
         started = time.perf_counter()
         if self.n == 1:  # no free pose: the integral over a 0-dimensional space is 1
             return OdometryEvaluation(0.0, 0.0, 0.0, float(self.model.n_importance), 0, 0, True, np.zeros(0))
-        fit = self.graph.fit(self._warm_start(labels), labels)
+        topology = self.graph.topology(labels)
+        fit = self.graph.fit(self._warm_start(topology), topology)
         evaluation = self._importance_sample(fit, labels)
         if not math.isfinite(evaluation.log_likelihood):
             raise ValueError(
@@ -216,20 +217,20 @@ class OdometryTerm:
 
     # -- internals ------------------------------------------------------------------------------
 
-    def _warm_start(self, labels) -> np.ndarray:
+    def _warm_start(self, topology) -> np.ndarray:
         """The lowest-energy start under ``labels`` among the last optimum, the optimum of the most
         likely partition so far (a sampler's current state usually is one of the likely ones) and
         dead reckoning."""
         candidates = (self._last_solution, self._best_solution, self._dead_reckoning)
-        energies = self.graph.energy(np.stack(candidates), labels)
+        energies = self.graph.energy(np.stack(candidates), topology)
         return candidates[int(np.argmin(energies))]
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         offsets, half_quadratic = fit.factor.sample(self._noise_columns)
-        poses = poses_from_vector(fit.x + offsets.T)
+        states = fit.x + offsets.T
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         log_weights = (log_proposal_norm + half_quadratic
-                       - self.graph.pose_energy(poses, labels) - self._penalties(poses, fit.x, labels))
+                       - self.graph.energy(states, fit.topology) - self._penalties(states, offsets, fit.x, labels))
         largest = float(log_weights.max())
         weights = np.exp(log_weights - largest)
         estimate = largest + math.log(float(weights.mean()))
@@ -246,17 +247,17 @@ class OdometryTerm:
             solution=fit.x,
         )
 
-    def _penalties(self, poses, centre, labels) -> np.ndarray:
-        """Pen of every sample (``poses``: (S, N, 3)); pairs that no sample can bring within the
-        radius are skipped exactly."""
+    def _penalties(self, states, offsets, centre, labels) -> np.ndarray:
+        """Pen of every sample (``states``: (S, d), their ``offsets`` from the ``centre`` P*: (d, S));
+        pairs that no sample can bring within the radius are skipped exactly."""
         if self.model.max_penalty == 0.0 or self.n < 2:
-            return np.zeros(len(poses))
+            return np.zeros(len(states))
         different = labels[self._pair_first] != labels[self._pair_second]
         first, second = self._pair_first[different], self._pair_second[different]
+        sample_xy = poses_from_vector(states)[..., :2]
         centre_xy = poses_from_vector(centre)[:, :2]
-        sample_xy = poses[..., :2]
-        offsets = sample_xy - centre_xy
-        reach = np.sqrt(np.max(offsets[..., 0] ** 2 + offsets[..., 1] ** 2, axis=0))
+        reach = np.zeros(self.n)
+        reach[1:] = np.sqrt(np.max(offsets[0::3] ** 2 + offsets[1::3] ** 2, axis=1))
         separation = centre_xy[first] - centre_xy[second]
         centre_distance = np.hypot(separation[:, 0], separation[:, 1])
         # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j

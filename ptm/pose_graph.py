@@ -21,15 +21,15 @@ Linear algebra exploits the structure. Per set S the clique Laplacian is
 (|S| I - 1 1^T) / sigma_T^2: a diagonal minus a rank-one term, so
 H = A - U U^T with A the block-tridiagonal odometry Hessian plus a diagonal
 (banded, half-bandwidth 5: a banded Cholesky costs O(d)) and U one column per
-set and axis (r <= N columns). Solves use the Woodbury identity, log det H =
-log det A + log det(I - U^T A^-1 U), and draws from N(0, H^-1) are
-L_A^-T eps_1 + A^-1 U L_K^-T eps_2 (K = I - U^T A^-1 U = L_K L_K^T), whose
-covariance is A^-1 + A^-1 U K^-1 U^T A^-1 = H^-1. Above ``sparse_above``
-variables, where r^2 d would dominate, a general sparse L D L^T (SuperLU with a
-symmetric ordering and diagonal pivots) is used instead.
+set and axis (r <= N columns). With A = L L^T and W = L^-1 U, solves use the
+Woodbury identity, log det H = log det A + log det(I - W^T W), and draws from
+N(0, H^-1) are L^-T (eps_1 + W L_K^-T eps_2) with K = I - W^T W = L_K L_K^T
+(see :class:`BandedLowRankFactor`). Above ``sparse_above`` variables, where
+r^2 d would dominate, a general sparse L D L^T (SuperLU with a symmetric
+ordering and diagonal pivots) is used instead.
 
     >>> graph = PoseGraph(odometry, odometry_sqrt_information(covariances), sigma_topology=0.3)
-    >>> fit = graph.fit(graph.dead_reckoning(), labels=(0, 1, 2, 0))
+    >>> fit = graph.fit(graph.dead_reckoning(), (0, 1, 2, 0))
     >>> fit.energy, fit.factor.log_det()
 """
 
@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -92,13 +93,21 @@ def poses_from_vector(x) -> np.ndarray:
     return np.concatenate([origin, poses], axis=-2)
 
 
-def _step_frames(poses):
+class _StepFrames(NamedTuple):
     """cos and sin of each step's starting heading, and the step's translation (u, v) in that frame."""
+
+    cos: np.ndarray
+    sin: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+
+def _step_frames(poses) -> _StepFrames:
     previous, current = poses[..., :-1, :], poses[..., 1:, :]
     cos, sin = np.cos(previous[..., 2]), np.sin(previous[..., 2])
     dx = current[..., 0] - previous[..., 0]
     dy = current[..., 1] - previous[..., 1]
-    return cos, sin, cos * dx + sin * dy, -sin * dx + cos * dy
+    return _StepFrames(cos, sin, cos * dx + sin * dy, -sin * dx + cos * dy)
 
 
 def odometry_residuals(poses, odometry) -> np.ndarray:
@@ -107,13 +116,13 @@ def odometry_residuals(poses, odometry) -> np.ndarray:
     The angle residual is wrapped to [-pi, pi) (the energy is even in it, so the
     end point does not matter).
     """
-    _, _, u, v = _step_frames(poses)
-    residuals = np.empty(np.broadcast_shapes(poses[..., 1:, :].shape, np.shape(odometry)))
-    residuals[..., 0] = u - odometry[:, 0]
-    residuals[..., 1] = v - odometry[:, 1]
+    return np.stack(_residual_components(poses, odometry, _step_frames(poses)), axis=-1)
+
+
+def _residual_components(poses, odometry, frames: _StepFrames) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The three components of :func:`odometry_residuals`, each of shape (..., N-1)."""
     angle = poses[..., 1:, 2] - poses[..., :-1, 2] - odometry[:, 2] + np.pi
-    residuals[..., 2] = np.remainder(angle, 2.0 * np.pi) - np.pi
-    return residuals
+    return frames.u - odometry[:, 0], frames.v - odometry[:, 1], np.remainder(angle, 2.0 * np.pi) - np.pi
 
 
 def odometry_jacobian_blocks(poses) -> tuple[np.ndarray, np.ndarray]:
@@ -123,7 +132,11 @@ def odometry_jacobian_blocks(poses) -> tuple[np.ndarray, np.ndarray]:
     frame as (u, v): d(u, v)/d t_k = R^T, d(u, v)/d t_{k-1} = -R^T,
     d(u, v)/d theta_{k-1} = (v, -u), and the angle residual has slopes +1 / -1.
     """
-    cos, sin, u, v = _step_frames(poses)
+    return _jacobian_blocks(_step_frames(poses))
+
+
+def _jacobian_blocks(frames: _StepFrames) -> tuple[np.ndarray, np.ndarray]:
+    cos, sin, u, v = frames
     steps = len(cos)
     wrt_current = np.zeros((steps, 3, 3))
     wrt_current[:, 0, 0] = cos
@@ -146,7 +159,11 @@ def odometry_second_order_blocks(poses, multipliers) -> tuple[np.ndarray, np.nda
     and the opposite for t_{k-1}. Returns the (p_{k-1}, p_{k-1}) and the
     (p_{k-1}, p_k) blocks; the (p_k, p_k) block is zero.
     """
-    cos, sin, u, v = _step_frames(poses)
+    return _second_order_blocks(_step_frames(poses), multipliers)
+
+
+def _second_order_blocks(frames: _StepFrames, multipliers) -> tuple[np.ndarray, np.ndarray]:
+    cos, sin, u, v = frames
     m_u, m_v = multipliers[:, 0], multipliers[:, 1]
     theta_x_current = -m_u * sin - m_v * cos
     theta_y_current = m_u * cos - m_v * sin
@@ -187,13 +204,16 @@ class LaplaceFit:
     iterations: int
     factorisations: int  # Cholesky / LU factorisations spent, failed attempts included
     converged: bool
+    topology: "TopologyHessian"  # of the partition fitted
 
 
 @dataclass(frozen=True)
-class _TopologyHessian:
+class TopologyHessian:
     """(Clique Laplacian of T) / sigma_T^2 on the free x and y coordinates, two ways.
 
     As COO entries (no duplicates), and as star_diagonal - low_rank low_rank^T.
+    The topology energy is the quadratic form 1/2 x^T H_T x of this matrix
+    (pose 0 sits at the origin, so its terms vanish).
     """
 
     rows: np.ndarray
@@ -203,9 +223,29 @@ class _TopologyHessian:
     star_diagonal: np.ndarray  # (d,): |S| / sigma_T^2 on the members of non-singleton sets
     low_rank: np.ndarray  # (d, r): per set and axis, 1 / sigma_T on the members' coordinates
     low_rank_transpose: "_MemberSums"  # its transpose as sums over members (one entry per coordinate)
+    set_sizes: np.ndarray  # (r,): |S| of each column's set, pose 0 included
+    origin_in_set: np.ndarray  # (r,): 1 where pose 0 belongs to the column's set
 
     def __matmul__(self, vector) -> np.ndarray:
         return np.bincount(self.rows, weights=self.values * vector[self.cols], minlength=len(vector))
+
+    def energy(self, states) -> np.ndarray:
+        """1/2 x^T H_T x for states of shape (..., d): the topology energy.
+
+        Evaluated as :func:`clique_pair_energy` does, 1/2 sum_S |S| sum_{i in S}
+        |t_i - mean_S|^2 / sigma_T^2 with pose 0 (at the origin) a member of its
+        set, one coordinate axis at a time: the quadratic form itself cancels
+        catastrophically far from the origin, and a fit compares energies to
+        the last digit.
+        """
+        members = self.low_rank_transpose
+        if not len(members.starts):
+            return np.zeros(np.shape(states)[:-1])
+        values = states[..., members.coordinates]
+        means = np.add.reduceat(values, members.starts, axis=-1) / self.set_sizes
+        deviations = values - means[..., members.columns]
+        squares = np.add.reduceat(deviations * deviations, members.starts, axis=-1) + self.origin_in_set * means**2
+        return 0.5 * members.scale**2 * (squares @ self.set_sizes)
 
 
 class PoseGraph:
@@ -235,7 +275,9 @@ class PoseGraph:
         self.odometry = np.asarray(odometry, dtype=float)
         self.sqrt_information = np.asarray(sqrt_information, dtype=float)
         self.information = np.swapaxes(self.sqrt_information, 1, 2) @ self.sqrt_information
-        self._information_flat = self.information.ravel()  # sum_k r_k^T W_k r_k = vec(r r^T) . vec(W)
+        # r_k^T W_k r_k = sum_{a<=b} c_kab r_ka r_kb with c_kaa = W_kaa and c_kab = 2 W_kab (zero terms left out)
+        self._quadratic_terms = [(a, b, (1.0 if a == b else 2.0) * self.information[:, a, b])
+                                 for a in range(3) for b in range(a, 3) if np.any(self.information[:, a, b])]
         self.sigma_topology = float(sigma_topology)
         self.n = len(self.odometry) + 1
         self.dimension = 3 * (self.n - 1)
@@ -255,18 +297,21 @@ class PoseGraph:
             poses[k] = (x + cos * dx - sin * dy, y + sin * dx + cos * dy, theta + dtheta)
         return poses[1:].ravel()
 
-    def energy(self, states, labels) -> np.ndarray:
-        """E of each state in ``states`` (shape (..., d)) under the partition ``labels``."""
-        return self.pose_energy(poses_from_vector(states), labels)
+    def topology(self, labels) -> "TopologyHessian":
+        """The topology term of the partition ``labels`` (canonical or not), for :meth:`energy` and :meth:`fit`."""
+        return self._topology_hessian(np.asarray(labels))
 
-    def pose_energy(self, poses, labels) -> np.ndarray:
-        """E of poses of shape (..., N, 3), pose 0 at the origin, under the partition ``labels``."""
-        residuals = odometry_residuals(poses, self.odometry)
-        outer = residuals[..., :, None] * residuals[..., None, :]  # r_k r_k^T, (..., N-1, 3, 3)
-        odometry_energy = 0.5 * (outer.reshape(*outer.shape[:-3], -1) @ self._information_flat)
-        return odometry_energy + clique_pair_energy(poses[..., :2], labels, self.sigma_topology)
+    def energy(self, states, partition) -> np.ndarray:
+        """E of each state in ``states`` (shape (..., d)) under ``partition`` (labels or a :meth:`topology`)."""
+        topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
+        states = np.asarray(states, dtype=float)
+        poses = poses_from_vector(states)
+        residuals = _residual_components(poses, self.odometry, _step_frames(poses))
+        odometry_energy = 0.5 * sum((residuals[a] * residuals[b]) @ coefficients
+                                    for a, b, coefficients in self._quadratic_terms)
+        return odometry_energy + topology.energy(states)
 
-    def fit(self, start, labels) -> LaplaceFit:
+    def fit(self, start, partition) -> LaplaceFit:
         """Minimise E from ``start``; factorise the Gauss-Newton Hessian at the minimum.
 
         Steps are Newton steps on the exact Hessian (Gauss-Newton plus the
@@ -285,10 +330,9 @@ class PoseGraph:
         Hessian is still positive definite, so it still defines a valid
         importance-sampling proposal, and the caller records the failure.
         """
-        labels = np.asarray(labels)
-        topology = self._topology_hessian(labels)
+        topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
         x = np.array(start, dtype=float)
-        energy = float(self.energy(x, labels))
+        energy = float(self.energy(x, topology))
         damping = 0.0
         close = False
         chord_factor = None  # the last accepted step's factor, reused once (a Shamanskii step)
@@ -300,12 +344,12 @@ class PoseGraph:
                 factorisations += 1
                 step = -factor.solve(gradient)
                 if self._negligible(step, gradient, energy):
-                    return LaplaceFit(x, energy, factor, iteration, factorisations, True)
+                    return LaplaceFit(x, energy, factor, iteration, factorisations, True, topology)
             if chord_factor is not None:
                 step = -chord_factor.solve(gradient)
                 chord_factor = None
                 candidate = x + step
-                candidate_energy = float(self.energy(candidate, labels))
+                candidate_energy = float(self.energy(candidate, topology))
                 if candidate_energy <= energy or self._negligible(step, gradient, energy):
                     close = np.max(np.abs(step)) < self.close_tolerance
                     x, energy = candidate, min(candidate_energy, energy)
@@ -321,7 +365,7 @@ class PoseGraph:
                     continue
                 step = -factor.solve(gradient)
                 candidate = x + step
-                candidate_energy = float(self.energy(candidate, labels))
+                candidate_energy = float(self.energy(candidate, topology))
                 if candidate_energy <= energy or self._negligible(step, gradient, energy):
                     close = np.max(np.abs(step)) < self.close_tolerance
                     x, energy = candidate, min(candidate_energy, energy)
@@ -331,7 +375,7 @@ class PoseGraph:
                 damping = max(1e-4, 10.0 * damping)
         _, gauss_newton, _ = self._linearise(x, topology)
         factor = self._factorised_hessian(topology, gauss_newton)
-        return LaplaceFit(x, energy, factor, self.max_iterations, factorisations + 1, False)
+        return LaplaceFit(x, energy, factor, self.max_iterations, factorisations + 1, False, topology)
 
     def _negligible(self, step, gradient, energy) -> bool:
         predicted_decrease = -0.5 * float(gradient @ step)
@@ -339,7 +383,7 @@ class PoseGraph:
 
     # -- linear algebra ---------------------------------------------------------------------------
 
-    def _linearise(self, x, topology: _TopologyHessian):
+    def _linearise(self, x, topology: TopologyHessian):
         """Gradient of E at ``x`` and the Gauss-Newton and second-order Hessian blocks of the odometry term.
 
         Blocks come as one array of shape (2N-3, 3, 3): the N-1 diagonal blocks
@@ -347,9 +391,10 @@ class PoseGraph:
         """
         poses = poses_from_vector(x)
         steps = self.n - 1
-        residuals = odometry_residuals(poses, self.odometry)
+        frames = _step_frames(poses)
+        residuals = np.stack(_residual_components(poses, self.odometry, frames), axis=-1)
         multipliers = np.einsum("kij,kj->ki", self.information, residuals)  # Sigma_k^-1 r_k
-        wrt_previous, wrt_current = odometry_jacobian_blocks(poses)
+        wrt_previous, wrt_current = _jacobian_blocks(frames)
         transposed_previous = np.swapaxes(wrt_previous, 1, 2)
         information_current = self.information @ wrt_current
         gradient_blocks = np.einsum("kji,kj->ki", wrt_current, multipliers)
@@ -361,13 +406,13 @@ class PoseGraph:
         gauss_newton[: steps - 1] += transposed_previous[1:] @ (self.information[1:] @ wrt_previous[1:])
         np.matmul(transposed_previous[1:], information_current[1:], out=gauss_newton[steps:])
 
-        second_previous, second_between = odometry_second_order_blocks(poses, multipliers)
+        second_previous, second_between = _second_order_blocks(frames, multipliers)
         second_order = np.zeros_like(gauss_newton)
         second_order[: steps - 1] = second_previous[1:]
         second_order[steps:] = second_between[1:]
         return gradient, gauss_newton, second_order
 
-    def _factorised_hessian(self, topology: _TopologyHessian, blocks, added_diagonal=None):
+    def _factorised_hessian(self, topology: TopologyHessian, blocks, added_diagonal=None):
         """Factorise the topology Laplacian + the block-tridiagonal odometry part (+ a diagonal)."""
         if self.sparse:
             return SparseFactor(self._hessian_matrix(topology, blocks, added_diagonal))
@@ -378,7 +423,7 @@ class PoseGraph:
             band[0] += added_diagonal
         return BandedLowRankFactor(band, topology.low_rank, topology.low_rank_transpose)
 
-    def _hessian_matrix(self, topology: _TopologyHessian, blocks, added_diagonal=None):
+    def _hessian_matrix(self, topology: TopologyHessian, blocks, added_diagonal=None):
         """The assembled sparse (CSC) matrix: topology Laplacian + odometry blocks (+ a diagonal)."""
         poses = self.n - 1
         diagonal, above = blocks[:poses], blocks[poses:]
@@ -390,7 +435,7 @@ class PoseGraph:
             matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
         return matrix
 
-    def _topology_hessian(self, labels) -> _TopologyHessian:
+    def _topology_hessian(self, labels) -> TopologyHessian:
         """Entries w (|S| I - 1 1^T), w = 1/sigma_T^2, of every set S with two or more members,
         on the x and y coordinates of its free poses (pose 0 is fixed but still counts in |S|)."""
         sizes = np.bincount(labels)[labels]
@@ -418,8 +463,13 @@ class PoseGraph:
         columns = np.concatenate([2 * column_of_set, 2 * column_of_set + 1])
         order = np.argsort(columns, kind="stable")
         starts = np.searchsorted(columns[order], np.arange(low_rank.shape[1]))
-        return _TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank,
-                                _MemberSums(coordinates[order], starts, 1.0 / self.sigma_topology))
+        set_sizes = np.zeros(low_rank.shape[1])
+        set_sizes[columns] = sizes[1:][np.concatenate([members, members])]
+        origin_in_set = np.zeros(low_rank.shape[1])
+        origin_in_set[2 * np.flatnonzero(set_labels == labels[0])[:, None] + np.arange(2)] = 1.0
+        return TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank,
+                               _MemberSums(coordinates[order], columns[order], starts, 1.0 / self.sigma_topology),
+                               set_sizes, origin_in_set)
 
 
 @dataclass(frozen=True)
@@ -427,6 +477,7 @@ class _MemberSums:
     """U^T as a linear map: column c of U holds ``scale`` on coordinates[starts[c]:starts[c + 1]]."""
 
     coordinates: np.ndarray
+    columns: np.ndarray  # the column of each coordinate entry
     starts: np.ndarray
     scale: float
 
@@ -439,30 +490,46 @@ class _MemberSums:
 class BandedLowRankFactor:
     """H = A - U U^T with A symmetric positive definite of half-bandwidth 5 (lower band storage).
 
-    Raises ``ValueError`` when A or K = I - U^T A^-1 U is not positive definite
-    (then neither is H, given A is).
+    With A = L L^T (banded Cholesky) and W = L^-1 U, H = L (I - W W^T) L^T, so
+    with K = I - W^T W = L_K L_K^T the Woodbury identity gives
+
+        H^-1 b = L^-T (y + W K^-1 W^T y),    y = L^-1 b,
+        log det H = log det A + log det K.
+
+    Only forward substitutions (no back substitutions) build W.
+
+    Raises ``ValueError`` when A or K is not positive definite (then neither is
+    H, given A is).
     """
 
-    def __init__(self, band, low_rank, low_rank_transpose):
-        self.band = band
+    def __init__(self, band, low_rank, low_rank_transpose: "_MemberSums"):
+        # LAPACK is called directly: at N = 100 the scipy.linalg wrappers' checks cost as much as the work
         self.low_rank_transpose = low_rank_transpose
-        try:
-            self.band_factor = scipy.linalg.cholesky_banded(band, lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
-            raise ValueError("the pose-graph Hessian is not positive definite") from None
-        self.a_inverse_u = scipy.linalg.cho_solve_banded((self.band_factor, True), low_rank, check_finite=False)
-        self.u_a_inverse_u = low_rank_transpose @ self.a_inverse_u  # I - K
-        try:
-            self.capacitance_factor = scipy.linalg.cholesky(np.eye(low_rank.shape[1]) - self.u_a_inverse_u,
-                                                            lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
-            raise ValueError("the pose-graph Hessian is not positive definite") from None
+        self.band_factor, info = scipy.linalg.lapack.dpbtrf(band, lower=1)
+        if info != 0:
+            raise ValueError("the pose-graph Hessian is not positive definite")
+        self.dimension = band.shape[1]
+        self.whitened_low_rank = self._triangular_solve(low_rank) if low_rank.shape[1] else low_rank  # W = L^-1 U
+        capacitance = np.eye(low_rank.shape[1]) - self.whitened_low_rank.T @ self.whitened_low_rank
+        self.capacitance_factor, info = scipy.linalg.lapack.dpotrf(capacitance, lower=1)
+        if info != 0:
+            raise ValueError("the pose-graph Hessian is not positive definite")
+
+    def _triangular_solve(self, rhs, transpose: bool = False) -> np.ndarray:
+        """L^-1 rhs, or L^-T rhs."""
+        solution, info = scipy.linalg.lapack.dtbtrs(self.band_factor, rhs, uplo="L",
+                                                    trans="T" if transpose else "N")
+        if info != 0:
+            raise ValueError(f"banded triangular solve failed (LAPACK info {info})")
+        return solution
 
     def solve(self, rhs) -> np.ndarray:
-        first = scipy.linalg.cho_solve_banded((self.band_factor, True), rhs, check_finite=False)
-        correction = scipy.linalg.cho_solve((self.capacitance_factor, True), self.low_rank_transpose @ first,
-                                            check_finite=False)
-        return first + self.a_inverse_u @ correction
+        whitened = self._triangular_solve(np.reshape(rhs, (self.dimension, -1)))
+        if self.capacitance_factor.shape[0]:
+            correction, _ = scipy.linalg.lapack.dpotrs(self.capacitance_factor, self.whitened_low_rank.T @ whitened,
+                                                       lower=1)
+            whitened = whitened + self.whitened_low_rank @ correction
+        return self._triangular_solve(whitened, transpose=True).reshape(np.shape(rhs))
 
     def log_det(self) -> float:
         return 2.0 * float(np.sum(np.log(self.band_factor[0])) + np.sum(np.log(np.diag(self.capacitance_factor))))
@@ -471,23 +538,21 @@ class BandedLowRankFactor:
         """Offsets delta_s ~ N(0, H^-1) as columns (d, S) from standard normal ``noise_columns``
         (at least d + r rows), and 1/2 delta_s^T H delta_s for each.
 
-        delta = a + A^-1 U b with a = L_A^-T eps_1 and b = L_K^-T eps_2; with
-        G = U^T A^-1 U = I - K, delta^T H delta = |eps_1|^2 + 2 (U^T a).b + b.G b - |U^T a + G b|^2.
+        delta = L^-T z with z = eps_1 + W L_K^-T eps_2, whose covariance
+        I + W K^-1 W^T = (I - W W^T)^-1 makes Cov(delta) = H^-1; and
+        delta^T H delta = |z|^2 - |W^T z|^2 = |z|^2 - |U^T delta|^2.
         """
-        dimension, rank = self.band.shape[1], self.u_a_inverse_u.shape[0]
-        band_noise = noise_columns[:dimension]
-        offsets, info = scipy.linalg.lapack.dtbtrs(self.band_factor, band_noise, uplo="L", trans="T")
-        if info != 0:
-            raise ValueError(f"banded triangular solve failed (LAPACK info {info})")
-        quadratic = np.einsum("ds,ds->s", band_noise, band_noise)
+        rank = self.capacitance_factor.shape[0]
+        whitened = noise_columns[: self.dimension]
         if rank:
-            coupled = scipy.linalg.solve_triangular(self.capacitance_factor, noise_columns[dimension:dimension + rank],
-                                                    trans="T", lower=True, check_finite=False)
-            projected = self.low_rank_transpose @ offsets
-            mixed = self.u_a_inverse_u @ coupled
-            quadratic += (2.0 * np.einsum("rs,rs->s", projected, coupled) + np.einsum("rs,rs->s", coupled, mixed)
-                          - np.sum((projected + mixed) ** 2, axis=0))
-            offsets = offsets + self.a_inverse_u @ coupled
+            coupled, _ = scipy.linalg.lapack.dtrtrs(self.capacitance_factor,
+                                                    noise_columns[self.dimension:self.dimension + rank],
+                                                    lower=1, trans=1)
+            whitened = whitened + self.whitened_low_rank @ coupled
+        offsets = self._triangular_solve(whitened, transpose=True)
+        quadratic = np.einsum("ds,ds->s", whitened, whitened)
+        if rank:
+            quadratic -= np.einsum("rs,rs->s", projected := self.low_rank_transpose @ offsets, projected)
         return offsets, 0.5 * quadratic
 
 
