@@ -34,6 +34,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.spatial.distance
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
@@ -230,7 +231,7 @@ class OdometryTerm:
         states = fit.x + offsets.T
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         log_weights = (log_proposal_norm + half_quadratic
-                       - self.graph.energy(states, fit.topology) - self._penalties(states, offsets, fit.x, labels))
+                       - self.graph.energies_around(fit, offsets) - self._penalties(states, offsets, fit.x, labels))
         largest = float(log_weights.max())
         weights = np.exp(log_weights - largest)
         estimate = largest + math.log(float(weights.mean()))
@@ -252,18 +253,18 @@ class OdometryTerm:
         pairs that no sample can bring within the radius are skipped exactly."""
         if self.model.max_penalty == 0.0 or self.n < 2:
             return np.zeros(len(states))
-        different = labels[self._pair_first] != labels[self._pair_second]
-        first, second = self._pair_first[different], self._pair_second[different]
-        sample_xy = poses_from_vector(states)[..., :2]
-        centre_xy = poses_from_vector(centre)[:, :2]
         reach = np.zeros(self.n)
         reach[1:] = np.sqrt(np.max(offsets[0::3] ** 2 + offsets[1::3] ** 2, axis=1))
-        separation = centre_xy[first] - centre_xy[second]
-        centre_distance = np.hypot(separation[:, 0], separation[:, 1])
-        # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j
-        may_touch = centre_distance - reach[first] - reach[second] < self.model.penalty_radius
+        # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j; pdist orders
+        # the pairs as triu_indices does
+        centre_distance = scipy.spatial.distance.pdist(poses_from_vector(centre)[:, :2])
+        near = np.flatnonzero(centre_distance < self.model.penalty_radius + 2.0 * reach.max())
+        first, second = self._pair_first[near], self._pair_second[near]
+        may_touch = ((labels[first] != labels[second])
+                     & (centre_distance[near] - reach[first] - reach[second] < self.model.penalty_radius))
         pairs = (first[may_touch], second[may_touch])
-        return landmark_penalty(sample_xy, pairs, self.model.penalty_radius, self.model.max_penalty)
+        return landmark_penalty(poses_from_vector(states)[..., :2], pairs, self.model.penalty_radius,
+                                self.model.max_penalty)
 
     def _record(self, evaluation: OdometryEvaluation, seconds: float) -> None:
         self._evaluations += 1
