@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -48,6 +49,7 @@ import scipy.sparse.linalg
 __all__ = [
     "PoseGraph",
     "LaplaceFit",
+    "Linearisation",
     "odometry_sqrt_information",
     "odometry_residuals",
     "odometry_jacobian_blocks",
@@ -209,6 +211,64 @@ class LaplaceFit:
     topology: "TopologyHessian"  # of the partition fitted
 
 
+class Linearisation:
+    """E of one partition at one state x, with its derivatives there.
+
+    E is evaluated at once; the gradient and the Hessian blocks the first time
+    they are asked for, from the same step frames and residuals (a rejected
+    step needs only E). Hessian blocks come as one array of shape (2N-3, 3, 3):
+    the N-1 diagonal blocks of poses 1..N-1, then the N-2 blocks
+    (pose k-1, pose k) above the diagonal.
+    """
+
+    def __init__(self, graph: "PoseGraph", x, topology: "TopologyHessian"):
+        self.graph, self.x, self.topology = graph, x, topology
+        poses = poses_from_vector(x)
+        self.frames = _step_frames(poses)
+        self.residuals = _residual_components(poses, graph.odometry, self.frames)
+        self.energy = float(graph._odometry_energy_of(self.residuals) + topology.energy(x))
+
+    @cached_property
+    def _multipliers(self) -> np.ndarray:  # Sigma_k^-1 r_k
+        return np.einsum("kij,kj->ki", self.graph.information, np.stack(self.residuals, axis=-1))
+
+    @cached_property
+    def _jacobians(self) -> tuple[np.ndarray, np.ndarray]:
+        return _jacobian_blocks(self.frames)
+
+    @cached_property
+    def gradient(self) -> np.ndarray:
+        wrt_previous, wrt_current = self._jacobians
+        multipliers = self._multipliers
+        gradient_blocks = np.einsum("kji,kj->ki", wrt_current, multipliers)
+        gradient_blocks[:-1] += np.einsum("kji,kj->ki", wrt_previous[1:], multipliers[1:])
+        return gradient_blocks.ravel() + self.topology @ self.x
+
+    @cached_property
+    def gauss_newton(self) -> np.ndarray:
+        """The blocks of J^T Sigma^-1 J, the odometry term's Gauss-Newton Hessian."""
+        information = self.graph.information
+        wrt_previous, wrt_current = self._jacobians
+        steps = len(wrt_current)
+        transposed_previous = np.swapaxes(wrt_previous, 1, 2)
+        information_current = information @ wrt_current
+        blocks = np.empty((2 * steps - 1, 3, 3))
+        np.matmul(np.swapaxes(wrt_current, 1, 2), information_current, out=blocks[:steps])
+        blocks[: steps - 1] += transposed_previous[1:] @ (information[1:] @ wrt_previous[1:])
+        np.matmul(transposed_previous[1:], information_current[1:], out=blocks[steps:])
+        return blocks
+
+    @cached_property
+    def second_order(self) -> np.ndarray:
+        """The blocks of sum_k m_k . d^2 r_k, the rest of the odometry term's exact Hessian."""
+        second_previous, second_between = _second_order_blocks(self.frames, self._multipliers)
+        steps = len(second_previous)
+        blocks = np.zeros((2 * steps - 1, 3, 3))
+        blocks[: steps - 1] = second_previous[1:]
+        blocks[steps:] = second_between[1:]
+        return blocks
+
+
 @dataclass(frozen=True)
 class TopologyHessian:
     """(Clique Laplacian of T) / sigma_T^2 on the free x and y coordinates, two ways.
@@ -319,6 +379,11 @@ class PoseGraph:
         states = np.asarray(states, dtype=float)
         return self._odometry_energy(states) + topology.energy(states)
 
+    def linearise(self, x, partition) -> "Linearisation":
+        """E at the state ``x`` under ``partition`` (labels or a :meth:`topology`), and its derivatives."""
+        topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
+        return Linearisation(self, np.asarray(x, dtype=float), topology)
+
     def energies_around(self, fit: "LaplaceFit", offsets) -> np.ndarray:
         """E(P* + delta_s) of the fitted partition for offsets delta_s given as columns (d, S).
 
@@ -329,7 +394,10 @@ class PoseGraph:
 
     def _odometry_energy(self, states) -> np.ndarray:
         poses = poses_from_vector(states)
-        residuals = _residual_components(poses, self.odometry, _step_frames(poses))
+        return self._odometry_energy_of(_residual_components(poses, self.odometry, _step_frames(poses)))
+
+    def _odometry_energy_of(self, residuals) -> np.ndarray:
+        """1/2 sum_k r_k^T Sigma_k^-1 r_k from the three residual components."""
         return 0.5 * sum((residuals[a] * residuals[b]) @ coefficients for a, b, coefficients in self._quadratic_terms)
 
     def fit(self, start, partition) -> LaplaceFit:
@@ -352,31 +420,30 @@ class PoseGraph:
         importance-sampling proposal, and the caller records the failure.
         """
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
-        x = np.array(start, dtype=float)
-        energy = float(self.energy(x, topology))
+        point = Linearisation(self, np.array(start, dtype=float), topology)
+        energy = point.energy
         damping = 0.0
         close = False
         chord_factor = None  # the last accepted step's factor, reused once (a Shamanskii step)
         factorisations = 0
         for iteration in range(1, self.max_iterations + 1):
-            gradient, gauss_newton, second_order = self._linearise(x, topology)
             if close:
-                factor = self._factorised_hessian(topology, gauss_newton)
+                factor = self._factorised_hessian(topology, point.gauss_newton)
                 factorisations += 1
-                step = -factor.solve(gradient)
-                if self._negligible(step, gradient, energy):
-                    return LaplaceFit(x, energy, factor, iteration, factorisations, True, topology)
+                step = -factor.solve(point.gradient)
+                if self._negligible(step, point.gradient, energy):
+                    return LaplaceFit(point.x, energy, factor, iteration, factorisations, True, topology)
             if chord_factor is not None:
-                step = -chord_factor.solve(gradient)
+                step = -chord_factor.solve(point.gradient)
                 chord_factor = None
-                candidate = x + step
-                candidate_energy = float(self.energy(candidate, topology))
-                if candidate_energy <= energy or self._negligible(step, gradient, energy):
+                candidate = Linearisation(self, point.x + step, topology)
+                if candidate.energy <= energy or self._negligible(step, point.gradient, energy):
                     close = np.max(np.abs(step)) < self.close_tolerance
-                    x, energy = candidate, min(candidate_energy, energy)
+                    point, energy = candidate, min(candidate.energy, energy)
                     continue
-            exact = gauss_newton + second_order
-            damping_scale = np.diagonal(gauss_newton[: self.n - 1], axis1=1, axis2=2).ravel() + topology.diagonal
+            exact = point.gauss_newton + point.second_order
+            damping_scale = (np.diagonal(point.gauss_newton[: self.n - 1], axis1=1, axis2=2).ravel()
+                             + topology.diagonal)
             while True:
                 factorisations += 1
                 try:
@@ -384,54 +451,23 @@ class PoseGraph:
                 except ValueError:  # indefinite: damp towards gradient descent
                     damping = max(1e-4, 10.0 * damping)
                     continue
-                step = -factor.solve(gradient)
-                candidate = x + step
-                candidate_energy = float(self.energy(candidate, topology))
-                if candidate_energy <= energy or self._negligible(step, gradient, energy):
+                step = -factor.solve(point.gradient)
+                candidate = Linearisation(self, point.x + step, topology)
+                if candidate.energy <= energy or self._negligible(step, point.gradient, energy):
                     close = np.max(np.abs(step)) < self.close_tolerance
-                    x, energy = candidate, min(candidate_energy, energy)
+                    point, energy = candidate, min(candidate.energy, energy)
                     chord_factor = factor
                     damping = damping / 10.0 if damping > 1e-3 else 0.0
                     break
                 damping = max(1e-4, 10.0 * damping)
-        _, gauss_newton, _ = self._linearise(x, topology)
-        factor = self._factorised_hessian(topology, gauss_newton)
-        return LaplaceFit(x, energy, factor, self.max_iterations, factorisations + 1, False, topology)
+        factor = self._factorised_hessian(topology, point.gauss_newton)
+        return LaplaceFit(point.x, energy, factor, self.max_iterations, factorisations + 1, False, topology)
 
     def _negligible(self, step, gradient, energy) -> bool:
         predicted_decrease = -0.5 * float(gradient @ step)
         return np.max(np.abs(step)) < self.step_tolerance or predicted_decrease < 1e-15 * (1.0 + abs(energy))
 
     # -- linear algebra ---------------------------------------------------------------------------
-
-    def _linearise(self, x, topology: TopologyHessian):
-        """Gradient of E at ``x`` and the Gauss-Newton and second-order Hessian blocks of the odometry term.
-
-        Blocks come as one array of shape (2N-3, 3, 3): the N-1 diagonal blocks
-        of poses 1..N-1, then the N-2 blocks (pose k-1, pose k) above the diagonal.
-        """
-        poses = poses_from_vector(x)
-        steps = self.n - 1
-        frames = _step_frames(poses)
-        residuals = np.stack(_residual_components(poses, self.odometry, frames), axis=-1)
-        multipliers = np.einsum("kij,kj->ki", self.information, residuals)  # Sigma_k^-1 r_k
-        wrt_previous, wrt_current = _jacobian_blocks(frames)
-        transposed_previous = np.swapaxes(wrt_previous, 1, 2)
-        information_current = self.information @ wrt_current
-        gradient_blocks = np.einsum("kji,kj->ki", wrt_current, multipliers)
-        gradient_blocks[:-1] += np.einsum("kji,kj->ki", wrt_previous[1:], multipliers[1:])
-        gradient = gradient_blocks.ravel() + topology @ x
-
-        gauss_newton = np.empty((2 * steps - 1, 3, 3))
-        np.matmul(np.swapaxes(wrt_current, 1, 2), information_current, out=gauss_newton[:steps])
-        gauss_newton[: steps - 1] += transposed_previous[1:] @ (self.information[1:] @ wrt_previous[1:])
-        np.matmul(transposed_previous[1:], information_current[1:], out=gauss_newton[steps:])
-
-        second_previous, second_between = _second_order_blocks(frames, multipliers)
-        second_order = np.zeros_like(gauss_newton)
-        second_order[: steps - 1] = second_previous[1:]
-        second_order[steps:] = second_between[1:]
-        return gradient, gauss_newton, second_order
 
     def _factorised_hessian(self, topology: TopologyHessian, blocks, added_diagonal=None):
         """Factorise the topology Laplacian + the block-tridiagonal odometry part (+ a diagonal)."""
@@ -618,7 +654,7 @@ class SparseFactor:
 def _band_indices(poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the upper triangle of the 3x3 blocks goes in upper band storage (A[i, j] at band[5 + i - j, j]).
 
-    Blocks are laid out as in ``PoseGraph._linearise`` (diagonal blocks, then the
+    Blocks are laid out as in :class:`Linearisation` (diagonal blocks, then the
     blocks above the diagonal); returns (band row, band column, index into the
     flattened blocks) for every stored entry. Entries are enumerated in the lower
     triangle, A[j + m, j] for m = 0..5, and stored as their mirror A[j, j + m].

@@ -113,15 +113,16 @@ def test_energy_gradient_and_newton_hessian_match_finite_differences(covariance)
     labels = np.array([0, 1, 2, 3, 0, 1])
     x = graph.dead_reckoning() + np.random.default_rng(5).normal(0.0, 0.3, graph.dimension)
     topology = graph._topology_hessian(labels)
-    gradient, gauss_newton, second_order = graph._linearise(x, topology)
-    hessian = graph._hessian_matrix(topology, gauss_newton + second_order).toarray()
+    linearisation = graph.linearise(x, topology)
+    assert linearisation.energy == graph.energy(x, labels)
+    hessian = graph._hessian_matrix(topology, linearisation.gauss_newton + linearisation.second_order).toarray()
     step = 1e-6
     basis = np.eye(graph.dimension)
     numeric_gradient = np.array([(graph.energy(x + step * e, labels) - graph.energy(x - step * e, labels)) / (2 * step)
                                  for e in basis])
-    numeric_hessian = np.array([(graph._linearise(x + step * e, topology)[0]
-                                 - graph._linearise(x - step * e, topology)[0]) / (2 * step) for e in basis])
-    np.testing.assert_allclose(gradient, numeric_gradient, rtol=1e-6, atol=1e-5)
+    numeric_hessian = np.array([(graph.linearise(x + step * e, topology).gradient
+                                 - graph.linearise(x - step * e, topology).gradient) / (2 * step) for e in basis])
+    np.testing.assert_allclose(linearisation.gradient, numeric_gradient, rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(hessian, numeric_hessian, rtol=1e-6, atol=1e-4)
 
 
@@ -151,7 +152,8 @@ def test_factors_solve_log_det_and_sample_the_assembled_hessian(sparse_above):
     graph = ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 0.0, sparse_above=sparse_above).bind(dataset).graph
     labels = np.array([0, 1, 2, 3, 0, 1, 2, 3, 0])
     topology = graph._topology_hessian(labels)
-    gradient, gauss_newton, _ = graph._linearise(graph.dead_reckoning(), topology)
+    linearisation = graph.linearise(graph.dead_reckoning(), topology)
+    gradient, gauss_newton = linearisation.gradient, linearisation.gauss_newton
     factor = graph._factorised_hessian(topology, gauss_newton)
     hessian = graph._hessian_matrix(topology, gauss_newton).toarray()
     assert factor.log_det() == pytest.approx(np.linalg.slogdet(hessian)[1], rel=1e-12)
