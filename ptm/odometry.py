@@ -183,13 +183,15 @@ class OdometryTerm:
         labels = _canonical_labels(partition)
         value = self._cache.get(labels)
         if value is None:
-            value = self.evaluate(labels).log_likelihood
+            value = self._evaluate_canonical(np.asarray(labels)).log_likelihood
             self._cache.put(labels, value)
         return value
 
     def evaluate(self, partition) -> OdometryEvaluation:
         """Compute log P(O | T) without the cache (records the evaluation in the diagnostics)."""
-        labels = np.asarray(_canonical_labels(partition))
+        return self._evaluate_canonical(np.asarray(_canonical_labels(partition)))
+
+    def _evaluate_canonical(self, labels: np.ndarray) -> OdometryEvaluation:
         if len(labels) != self.n:
             raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
         started = time.perf_counter()

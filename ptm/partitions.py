@@ -29,6 +29,12 @@ Block = tuple[int, ...]
 
 def canonical(labels) -> tuple[int, ...]:
     """The restricted growth string of any label sequence: ``(5, 2, 5, 7) -> (0, 1, 0, 2)``."""
+    if isinstance(labels, np.ndarray) and labels.ndim == 1 and labels.dtype.kind in "iu" and len(labels):
+        # vectorised: rank the distinct labels by where each first appears
+        _, first_seen, inverse = np.unique(labels, return_index=True, return_inverse=True)
+        rank = np.empty(len(first_seen), dtype=np.intp)
+        rank[np.argsort(first_seen)] = np.arange(len(first_seen))
+        return tuple(rank[inverse].tolist())
     renumber: dict = {}
     out = []
     for label in labels:

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from ptm.partitions import Partition, bell, canonical, log_stirling2_two, stirling2
@@ -27,6 +28,9 @@ def test_log_stirling_two_is_log_of_two_to_n_minus_one_minus_one(n):
 
 def test_canonical_form_is_the_restricted_growth_string():
     assert canonical((5, 2, 5, 7)) == (0, 1, 0, 2)
+    assert canonical(np.array([5, 2, 5, 7], dtype=np.uint8)) == (0, 1, 0, 2)
+    random_labels = np.random.default_rng(0).integers(-20, 20, size=200)
+    assert canonical(random_labels) == canonical(random_labels.tolist())  # the array fast path
     assert canonical([3.0, 3.0, 1.0]) == (0, 0, 1)
     with pytest.raises(ValueError, match="integers"):
         canonical([0, 1.5])
