@@ -259,6 +259,12 @@ class Linearisation:
         return blocks
 
     @cached_property
+    def damping_scale(self) -> np.ndarray:
+        """The diagonal of the Gauss-Newton Hessian (odometry and topology): Levenberg-Marquardt damping."""
+        steps = len(self.residuals[0])
+        return np.diagonal(self.gauss_newton[:steps], axis1=1, axis2=2).ravel() + self.topology.diagonal
+
+    @cached_property
     def second_order(self) -> np.ndarray:
         """The blocks of sum_k m_k . d^2 r_k, the rest of the odometry term's exact Hessian."""
         second_previous, second_between = _second_order_blocks(self.frames, self._multipliers)
@@ -271,17 +277,15 @@ class Linearisation:
 
 @dataclass(frozen=True)
 class TopologyHessian:
-    """(Clique Laplacian of T) / sigma_T^2 on the free x and y coordinates, two ways.
+    """H_T = (clique Laplacian of T) / sigma_T^2 on the free x and y coordinates.
 
-    As COO entries (no duplicates), and as star_diagonal - low_rank low_rank^T.
-    The topology energy is the quadratic form 1/2 x^T H_T x of this matrix
-    (pose 0 sits at the origin, so its terms vanish).
+    Held as star_diagonal - low_rank low_rank^T (the banded factor's form), and
+    as COO entries when first asked for (the sparse factor's). The topology
+    energy is the quadratic form 1/2 x^T H_T x (pose 0 sits at the origin, so
+    its terms vanish).
     """
 
-    rows: np.ndarray
-    cols: np.ndarray
-    values: np.ndarray
-    diagonal: np.ndarray  # (d,)
+    labels: np.ndarray  # the partition, canonical
     star_diagonal: np.ndarray  # (d,): |S| / sigma_T^2 on the members of non-singleton sets
     low_rank: np.ndarray  # (d, r): per set and axis, 1 / sigma_T on the members' coordinates
     low_rank_transpose: "_MemberSums"  # its transpose as sums over members (one entry per coordinate)
@@ -289,7 +293,25 @@ class TopologyHessian:
     origin_in_set: np.ndarray  # (r,): 1 where pose 0 belongs to the column's set
 
     def __matmul__(self, vector) -> np.ndarray:
-        return np.bincount(self.rows, weights=self.values * vector[self.cols], minlength=len(vector))
+        return self.star_diagonal * vector - self.low_rank @ (self.low_rank_transpose @ vector)
+
+    @cached_property
+    def diagonal(self) -> np.ndarray:
+        """(d,): each member coordinate's own column of U contributes 1 / sigma_T^2 to U U^T."""
+        return np.where(self.star_diagonal > 0.0, self.star_diagonal - self.low_rank_transpose.scale**2, 0.0)
+
+    @cached_property
+    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """COO (rows, cols, values) without duplicates: w (|S| - 1) on the diagonal of every
+        member coordinate and -w between the same coordinate of two members, w = 1/sigma_T^2."""
+        labels = self.labels
+        sizes = np.bincount(labels)[labels]
+        free_labels = labels[1:]
+        first, second = np.nonzero((free_labels[:, None] == free_labels[None, :]) & (sizes[1:, None] > 1))
+        weight = self.low_rank_transpose.scale**2
+        pair_values = np.where(first == second, weight * (sizes[1:][first] - 1.0), -weight)
+        return (np.concatenate([3 * first, 3 * first + 1]), np.concatenate([3 * second, 3 * second + 1]),
+                np.concatenate([pair_values, pair_values]))
 
     def energy(self, states) -> np.ndarray:
         """1/2 x^T H_T x for states of shape (..., d): the topology energy.
@@ -442,12 +464,11 @@ class PoseGraph:
                     point, energy = candidate, min(candidate.energy, energy)
                     continue
             exact = point.gauss_newton + point.second_order
-            damping_scale = (np.diagonal(point.gauss_newton[: self.n - 1], axis1=1, axis2=2).ravel()
-                             + topology.diagonal)
             while True:
                 factorisations += 1
                 try:
-                    factor = self._factorised_hessian(topology, exact, damping * damping_scale)
+                    factor = self._factorised_hessian(topology, exact,
+                                                      damping * point.damping_scale if damping else None)
                 except ValueError:  # indefinite: damp towards gradient descent
                     damping = max(1e-4, 10.0 * damping)
                     continue
@@ -484,29 +505,22 @@ class PoseGraph:
         """The assembled sparse (CSC) matrix: topology Laplacian + odometry blocks (+ a diagonal)."""
         poses = self.n - 1
         diagonal, above = blocks[:poses], blocks[poses:]
-        values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(), topology.values])
-        rows = np.concatenate([self._block_rows, topology.rows])
-        cols = np.concatenate([self._block_cols, topology.cols])
+        topology_rows, topology_cols, topology_values = topology.entries
+        values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(), topology_values])
+        rows = np.concatenate([self._block_rows, topology_rows])
+        cols = np.concatenate([self._block_cols, topology_cols])
         matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=(self.dimension, self.dimension))
         if added_diagonal is not None:
             matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
         return matrix
 
     def _topology_hessian(self, labels) -> TopologyHessian:
-        """Entries w (|S| I - 1 1^T), w = 1/sigma_T^2, of every set S with two or more members,
-        on the x and y coordinates of its free poses (pose 0 is fixed but still counts in |S|)."""
+        """w (|S| I - 1 1^T), w = 1/sigma_T^2, for every set S with two or more members, on the x and
+        y coordinates of its free poses (pose 0 is fixed but still counts in |S|), as a star diagonal
+        w |S| minus one column of U per set and axis (1/sigma_T on its members)."""
         sizes = np.bincount(labels)[labels]
         free_labels = labels[1:]
-        shared = (free_labels[:, None] == free_labels[None, :]) & (sizes[1:, None] > 1)
-        first, second = np.nonzero(shared)
         weight = 1.0 / self.sigma_topology**2
-        pair_values = np.where(first == second, weight * (sizes[1:][first] - 1.0), -weight)
-        rows = np.concatenate([3 * first, 3 * first + 1])
-        cols = np.concatenate([3 * second, 3 * second + 1])
-        values = np.concatenate([pair_values, pair_values])
-        diagonal = np.zeros(self.dimension)
-        on_diagonal = rows == cols
-        diagonal[rows[on_diagonal]] = values[on_diagonal]
         star_diagonal = np.zeros(self.dimension)
         members = np.flatnonzero(sizes[1:] > 1)
         for axis in (0, 1):
@@ -524,7 +538,7 @@ class PoseGraph:
         set_sizes[columns] = sizes[1:][np.concatenate([members, members])]
         origin_in_set = np.zeros(low_rank.shape[1])
         origin_in_set[2 * np.flatnonzero(set_labels == labels[0])[:, None] + np.arange(2)] = 1.0
-        return TopologyHessian(rows, cols, values, diagonal, star_diagonal, low_rank,
+        return TopologyHessian(labels, star_diagonal, low_rank,
                                _MemberSums(coordinates[order], columns[order], starts, 1.0 / self.sigma_topology),
                                set_sizes, origin_in_set)
 
