@@ -55,7 +55,6 @@ __all__ = [
     "odometry_jacobian_blocks",
     "odometry_second_order_blocks",
     "poses_from_vector",
-    "clique_pair_energy",
 ]
 
 #: Above this many variables the Hessian is factorised with sparse linear algebra.
@@ -181,23 +180,6 @@ def _second_order_blocks(frames: _StepFrames, multipliers) -> tuple[np.ndarray, 
     return wrt_previous, between
 
 
-def clique_pair_energy(positions, labels, sigma_topology: float) -> np.ndarray:
-    """1/2 sum_S sum_{i<j in S} |t_i - t_j|^2 / sigma_T^2 for positions of shape (..., N, 2).
-
-    Uses the exact identity sum_{i<j in S} |t_i - t_j|^2 = |S| sum_{i in S} |t_i - mean_S|^2
-    (not the star energy sum |t_i - mean_S|^2, which weights sets differently),
-    in O(N) per configuration and without cancellation.
-    """
-    labels = np.asarray(labels)
-    indicator = np.zeros((len(labels), int(labels.max()) + 1))
-    indicator[np.arange(len(labels)), labels] = 1.0
-    sizes = indicator.sum(axis=0)
-    means = (np.swapaxes(positions, -1, -2) @ (indicator / sizes))[..., labels]  # (..., 2, N)
-    deviations = np.swapaxes(positions, -1, -2) - means
-    squared = deviations[..., 0, :] ** 2 + deviations[..., 1, :] ** 2
-    return 0.5 * (squared @ sizes[labels]) / sigma_topology**2
-
-
 @dataclass(frozen=True)
 class LaplaceFit:
     """The minimiser of E for one partition and the factorised Hessian there."""
@@ -314,13 +296,14 @@ class TopologyHessian:
                 np.concatenate([pair_values, pair_values]))
 
     def energy(self, states) -> np.ndarray:
-        """1/2 x^T H_T x for states of shape (..., d): the topology energy.
+        """1/2 sum_S sum_{i<j in S} |t_i - t_j|^2 / sigma_T^2 = 1/2 x^T H_T x for states of shape (..., d).
 
-        Evaluated as :func:`clique_pair_energy` does, 1/2 sum_S |S| sum_{i in S}
-        |t_i - mean_S|^2 / sigma_T^2 with pose 0 (at the origin) a member of its
-        set, one coordinate axis at a time: the quadratic form itself cancels
-        catastrophically far from the origin, and a fit compares energies to
-        the last digit.
+        Evaluated through the exact identity sum_{i<j in S} |t_i - t_j|^2 =
+        |S| sum_{i in S} |t_i - mean_S|^2 (not the star energy
+        sum |t_i - mean_S|^2, which weights sets differently), with pose 0 (at
+        the origin) a member of its set, one coordinate axis at a time, in O(N)
+        per state: the quadratic form itself cancels catastrophically far from
+        the origin, and a fit compares energies to the last digit.
         """
         members = self.low_rank_transpose
         if not len(members.starts):

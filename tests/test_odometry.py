@@ -17,8 +17,8 @@ import pytest
 import ptm
 from ptm.dataset import wrap_angle
 from ptm.odometry import landmark_penalty
-from ptm.pose_graph import (clique_pair_energy, odometry_jacobian_blocks, odometry_residuals,
-                            odometry_second_order_blocks, odometry_sqrt_information, poses_from_vector)
+from ptm.pose_graph import (odometry_jacobian_blocks, odometry_residuals, odometry_second_order_blocks,
+                            odometry_sqrt_information, poses_from_vector)
 
 PLACE_SIGNATURES = np.array([[0.30, 0.10], [0.25, 0.15], [0.40, 0.05], [0.32, 0.12]])
 
@@ -126,17 +126,25 @@ def test_energy_gradient_and_newton_hessian_match_finite_differences(covariance)
     np.testing.assert_allclose(hessian, numeric_hessian, rtol=1e-6, atol=1e-4)
 
 
-def test_clique_energy_is_the_pairwise_sum_not_the_star_energy():
+def test_topology_energy_is_the_pairwise_sum_not_the_star_energy():
+    graph = ptm.OdometryModel(0.1, 0.05, 0.7, 2.5, 0.0).bind(square_loop_dataset(9)).graph
+    labels = np.array([0, 1, 0, 2, 0, 1, 3, 0, 2])  # pose 0, at the origin, shares a set with 2, 4 and 7
     rng = np.random.default_rng(6)
-    positions = rng.normal(0.0, 3.0, size=(4, 9, 2))
-    labels = np.array([0, 1, 0, 2, 0, 1, 3, 0, 2])
-    sigma = 0.7
+    centre = rng.normal(0.0, 30.0, graph.dimension)  # far from the origin, where x^T H_T x would cancel
+    offsets = rng.normal(0.0, 0.5, size=(graph.dimension, 4))
+    states = centre + offsets.T
+    positions = poses_from_vector(states)[..., :2]
     pairwise = np.zeros(4)
     for i in range(9):
         for j in range(i + 1, 9):
             if labels[i] == labels[j]:
-                pairwise += 0.5 * np.sum((positions[:, i] - positions[:, j]) ** 2, axis=-1) / sigma**2
-    np.testing.assert_allclose(clique_pair_energy(positions, labels, sigma), pairwise, rtol=1e-12)
+                pairwise += 0.5 * np.sum((positions[:, i] - positions[:, j]) ** 2, axis=-1) / 0.7**2
+    topology = graph.topology(labels)
+    np.testing.assert_allclose(topology.energy(states), pairwise, rtol=1e-12)
+    np.testing.assert_allclose(topology.energy_around(centre, offsets), pairwise, rtol=1e-12)
+    np.testing.assert_allclose(topology @ centre, graph._hessian_matrix(topology, np.zeros((15, 3, 3))) @ centre,
+                               rtol=1e-12)
+    assert np.all(topology.energy(states) > 0)
 
 
 def test_penalty_is_the_cubic_of_the_paper():
