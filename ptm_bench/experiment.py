@@ -27,6 +27,7 @@ is :data:`DEFAULTS`; a variant may override any key of ``[inference]``,
 from __future__ import annotations
 
 import copy
+import hashlib
 import itertools
 import json
 import tomllib
@@ -191,9 +192,16 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
         runs += [(baseline, baseline, "baseline", _baseline_settings(experiment, baseline)) for baseline in experiment.baselines]
         for variant_name, models, method, settings in runs:
             cell_id = f"{condition['world']}|a={aliasing:g}|noise={noise:g}|seed={seed}|{variant_name}"
-            cells.append({"cell_id": cell_id, **condition, "variant": variant_name, "models": models,
-                          "method": method, "settings": settings, "inputs": inputs})
+            cell = {"cell_id": cell_id, **condition, "variant": variant_name, "models": models,
+                    "method": method, "settings": settings, "inputs": inputs}
+            cells.append({**cell, "definition": _definition(cell)})
     return cells
+
+
+def _definition(cell: dict) -> str:
+    """A digest of the config of a cell: everything in it but where its datasets are cached."""
+    decisive = {**cell, "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"}}
+    return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def _baseline_settings(experiment: Experiment, baseline: str) -> dict:

@@ -1,7 +1,7 @@
 """``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures (SPEC §6).
 
 Cells already in ``results/NAME/cells.csv`` are skipped, so an interrupted run
-resumes where it stopped. Cells run in local processes by default, or on a
+resumes where it stopped; cells whose config was edited since are recomputed. Cells run in local processes by default, or on a
 Dask distributed cluster with ``--scheduler ADDRESS`` (``pip install 'ptm[dask]'``).
 
     $ ptm-bench run experiments/exp3_nested.toml
@@ -40,6 +40,11 @@ def run(args) -> int:
     print(describe(experiment))
     table = run_sweep(cells, run_cell, results_dir / "cells.csv", workers=args.workers, scheduler=args.scheduler,
                       retry_failed=args.retry_failed, progress=not args.no_progress)
+    if table.attrs.get("recomputed_changed"):
+        print(f"{table.attrs['recomputed_changed']} cells were recomputed: the config changed them since the table was written")
+    if table.attrs.get("reused_unverified"):
+        print(f"{table.attrs['reused_unverified']} cells were reused from a table written before configs were recorded; "
+              f"delete {results_dir / 'cells.csv'} to recompute them")
     summary_path = write_summary(experiment, table, results_dir, figures=not args.no_figures)
     summary = aggregate(table)
     if len(summary):

@@ -10,6 +10,13 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   the order of the cell list, so an interrupted sweep loses at most the cells
   that were running, and a rerun skips every cell already in the table
   (``retry_failed=True`` reruns the ones that ended in an error).
+* A cell may carry a plain ``"definition"`` value, a digest of everything
+  of its config (``ptm_bench.experiment.expand_cells`` makes one from the
+  settings, calibration seeds and generator options). A row is
+  reused only while its definition matches: edit a config and the cells it
+  changes are recomputed, the rest are not. Rows of a table written before
+  definitions existed are reused unverified; the returned table counts both
+  kinds in ``table.attrs``.
 * A cell that raises is recorded with its error and the sweep goes on.
 * Locally every cell runs in its own process (at most ``workers`` at a
   time), forked from a clean fork server rather than from this process (a
@@ -105,6 +112,12 @@ def run_sweep(
             if retry_failed and row.get("status") != "ok":
                 continue
             rows[str(row["cell_id"])] = row
+    changed = [cell_id for cell, cell_id in zip(cells, cell_ids)
+               if cell_id in rows and _recorded_definition(rows[cell_id]) not in (None, cell.get("definition"))]
+    unverified = sum(1 for cell, cell_id in zip(cells, cell_ids)
+                     if cell_id in rows and "definition" in cell and _recorded_definition(rows[cell_id]) is None)
+    for cell_id in changed:
+        del rows[cell_id]
     pending = [cell for cell, cell_id in zip(cells, cell_ids) if cell_id not in rows]
 
     if scheduler is None:
@@ -119,7 +132,15 @@ def run_sweep(
             bar.update(1)
     if not pending:
         _write_table(table_path, rows, order)
-    return read_table(table_path)
+    table = read_table(table_path)
+    table.attrs.update(recomputed_changed=len(changed), reused_unverified=unverified)
+    return table
+
+
+def _recorded_definition(row: dict) -> str | None:
+    """The definition a table row was computed under; None for a row written before definitions existed."""
+    definition = row.get("definition")
+    return definition if isinstance(definition, str) else None
 
 
 def _cell_id(cell: dict) -> str:

@@ -110,6 +110,24 @@ def test_retry_failed_reruns_only_the_failed_cells(tmp_path):
     assert (table["status"] == "ok").all()
 
 
+def test_cells_whose_definition_changed_are_recomputed_and_only_those(tmp_path):
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(make_cells(seeds=range(2), definition="v1"), synthetic_cell, path, workers=2, progress=False)
+    log = tmp_path / "calls.log"
+    cells = make_cells(seeds=range(2), definition="v1", inputs={"call_log": str(log)})
+    cells[1] = {**cells[1], "definition": "v2"}  # as if its config had been edited
+    table = sweep.run_sweep(cells, synthetic_cell, path, workers=2, progress=False)
+    assert log.read_text().split() == [cells[1]["cell_id"]]
+    assert table.attrs == {"recomputed_changed": 1, "reused_unverified": 0}
+    assert table.set_index("cell_id").loc[cells[1]["cell_id"], "definition"] == "v2"
+    # a table from before definitions existed is reused as it is, and counted as unverified
+    legacy = tmp_path / "legacy.csv"
+    sweep.run_sweep(make_cells(seeds=range(2)), synthetic_cell, legacy, workers=2, progress=False)
+    table = sweep.run_sweep(make_cells(seeds=range(2), definition="v1"), raising_cell, legacy, workers=2, progress=False)
+    assert (table["status"] == "ok").all()
+    assert table.attrs == {"recomputed_changed": 0, "reused_unverified": 4}
+
+
 def test_a_killed_worker_is_retried_then_marked_failed_never_lost(tmp_path):
     cells = make_cells(seeds=range(3), noises=(0.1,), marker_dir=str(tmp_path))
     table = sweep.run_sweep(cells, dying_cell, tmp_path / "cells.csv", workers=2, max_attempts=2, progress=False)
@@ -176,6 +194,15 @@ def test_a_config_expands_into_named_cells_with_variant_overrides(tmp_path):
     odometry_only = next(cell for cell in cells if cell["variant"] == "odometry")
     assert odometry_only["settings"]["odometry"]["max_penalty"] == 50
     assert {cell["method"] for cell in cells if cell["variant"] == "greedy_odometry"} == {"baseline"}
+    # the definition digest follows the config, not where the results go
+    assert len({cell["definition"] for cell in cells}) == len(cells)
+    elsewhere = experiment.expand_cells(config, tmp_path / "elsewhere")
+    assert [cell["definition"] for cell in elsewhere] == [cell["definition"] for cell in cells]
+    edited = experiment.load_experiment(write_config(
+        tmp_path, 'baselines = ["greedy_odometry"]\n' + MINIMAL_CONFIG.replace("max_penalty = 150", "max_penalty = 100")))
+    changed = {cell["cell_id"] for cell, before in zip(experiment.expand_cells(edited, tmp_path), cells)
+               if cell["definition"] != before["definition"]}
+    assert changed == {cell["cell_id"] for cell in cells if cell["variant"] == "both"}
 
 
 @pytest.mark.parametrize("bad, message", [
