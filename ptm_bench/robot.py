@@ -17,8 +17,12 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import asdict, dataclass
 
+# mujoco picks its OpenGL backend when it is first imported; imported earlier without MUJOCO_GL it
+# has picked GLFW, which needs a display, and offscreen rendering fails (see Rig)
+_GL_BACKEND_CHOSEN_WITHOUT_US = "mujoco" in sys.modules and "MUJOCO_GL" not in os.environ
 os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco's renderer is imported: headless rendering
 
 import mujoco  # noqa: E402
@@ -207,7 +211,16 @@ class Rig:
     def __init__(self, model, rig: RigConfig):
         self.model = model
         self.config = rig
-        self.renderer = mujoco.Renderer(model, rig.image_height, rig.image_width)
+        try:
+            self.renderer = mujoco.Renderer(model, rig.image_height, rig.image_width)
+        except mujoco.FatalError as error:
+            if _GL_BACKEND_CHOSEN_WITHOUT_US:
+                raise RuntimeError(
+                    "cannot render: mujoco was imported before ptm_bench without MUJOCO_GL set, so it chose GLFW, "
+                    "which needs a display; set MUJOCO_GL=egl in the environment (headless), or import ptm_bench "
+                    "before mujoco"
+                ) from error
+            raise
         self.data = mujoco.MjData(model)
         self.camera_ids = [model.camera(f"cam_{index}").id for index in range(CAMERA_COUNT)]
 

@@ -4,6 +4,9 @@ Small images (24 x 32 per camera) keep these fast on a CPU with software EGL.
 """
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -74,3 +77,21 @@ def test_pixel_noise_has_the_requested_spread():
     image = np.full((64, 640, 3), 128, np.uint8)
     noisy = add_pixel_noise(image, 3.0, np.random.default_rng(0)).astype(float)
     assert noisy.std() == pytest.approx(3.0, rel=0.03) and abs(noisy.mean() - 128) < 0.05
+
+
+@pytest.mark.skipif(bool(os.environ.get("DISPLAY")), reason="with a display GLFW renders, and there is no error to explain")
+def test_mujoco_imported_first_without_mujoco_gl_gets_a_clear_error():
+    program = (
+        "import mujoco\n"
+        "from ptm_bench.floorplan import load_world\n"
+        "from ptm_bench.generate import build_world\n"
+        "from ptm_bench.robot import Rig, RigConfig\n"
+        "import numpy as np\n"
+        "model, _, _ = build_world(load_world('short_loop'), 0.0, np.random.default_rng(0))\n"
+        "Rig(model, RigConfig())\n"
+    )
+    environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
+    finished = subprocess.run([sys.executable, "-c", program], env=environment, capture_output=True, text=True,
+                              timeout=120)
+    assert finished.returncode != 0
+    assert "set MUJOCO_GL=egl" in finished.stderr
