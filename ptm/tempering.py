@@ -30,51 +30,61 @@ __all__ = ["tempered_mcmc"]
 
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
-                  delayed_acceptance: bool = False):
+                  delayed_acceptance: bool = False, chains: int = 1):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
+    ``chains`` independent ladders (their beta = 1 replicas starting from
+    different topologies) are pooled, and the split R-hat and ESS of their
+    beta = 1 traces are in the diagnostics, as for :func:`ptm.mcmc`; one
+    ladder draws from ``seed`` itself, several from its children.
     """
     n_samples = _count("n_samples", n_samples, minimum=1)
     burn_in = _count("burn_in", burn_in, minimum=0)
     thin = _count("thin", thin, minimum=1)
     swap_interval = _count("swap_interval", swap_interval, minimum=1)
+    chains = _count("chains", chains, minimum=1)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
 
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    replica_seeds = root.spawn(betas.size + 1)
-    swap_rng = np.random.default_rng(replica_seeds[-1])
-    rngs = [np.random.default_rng(s) for s in replica_seeds[:-1]]
+    ladder_seeds = [root] if chains == 1 else root.spawn(chains)
     mixtures = [MoveMixture(moves if moves is not None else default_moves()) for _ in betas]
-    states = [initial_state(posterior, _start_labels(posterior, init, index, rng)) for index, rng in enumerate(rngs)]
-    recorder = SampleRecorder(1, n_samples)
+    recorder = SampleRecorder(chains, n_samples)
     swaps_proposed = np.zeros(betas.size - 1, dtype=np.int64)
     swaps_accepted = np.zeros(betas.size - 1, dtype=np.int64)
 
     started = time.perf_counter()
     total = burn_in + n_samples * thin
-    for step in range(total):
-        for index, beta in enumerate(betas):
-            states[index], _ = mixtures[index].step(posterior, states[index], rngs[index], beta, delayed_acceptance)
-        if (step + 1) % swap_interval == 0:
-            lower = min(int(swap_rng.random() * (betas.size - 1)), betas.size - 2)
-            upper = lower + 1
-            log_ratio = (betas[lower] - betas[upper]) * (states[upper].log_prob - states[lower].log_prob)
-            swaps_proposed[lower] += 1
-            if math.log(swap_rng.random() or 5e-324) < log_ratio:
-                states[lower], states[upper] = states[upper], states[lower]
-                swaps_accepted[lower] += 1
-        kept, remainder = divmod(step - burn_in + 1, thin)
-        if step >= burn_in and remainder == 0:
-            recorder.keep(0, kept - 1, states[0])
+    for chain, ladder_seed in enumerate(ladder_seeds):
+        replica_seeds = ladder_seed.spawn(betas.size + 1)
+        swap_rng = np.random.default_rng(replica_seeds[-1])
+        rngs = [np.random.default_rng(s) for s in replica_seeds[:-1]]
+        states = [initial_state(posterior, _start_labels(posterior, init, chain + index, rng))
+                  for index, rng in enumerate(rngs)]
+        for step in range(total):
+            for index, beta in enumerate(betas):
+                states[index], _ = mixtures[index].step(posterior, states[index], rngs[index], beta, delayed_acceptance)
+            if (step + 1) % swap_interval == 0:
+                lower = min(int(swap_rng.random() * (betas.size - 1)), betas.size - 2)
+                upper = lower + 1
+                log_ratio = (betas[lower] - betas[upper]) * (states[upper].log_prob - states[lower].log_prob)
+                swaps_proposed[lower] += 1
+                if math.log(swap_rng.random() or 5e-324) < log_ratio:
+                    states[lower], states[upper] = states[upper], states[lower]
+                    swaps_accepted[lower] += 1
+            kept, remainder = divmod(step - burn_in + 1, thin)
+            if step >= burn_in and remainder == 0:
+                recorder.keep(chain, kept - 1, states[0])
+        recorder.flush()
     wall = time.perf_counter() - started
 
+    steps = chains * total * betas.size
     diagnostics = {
-        "chains": 1, "replicas": int(betas.size), "inverse_temperatures": betas.tolist(),
-        "steps": total * betas.size, "samples": n_samples, "wall_s": wall,
-        "steps_per_s": total * betas.size / wall if wall > 0 else float("inf"),
+        "chains": chains, "replicas": int(betas.size), "inverse_temperatures": betas.tolist(),
+        "steps": steps, "samples": chains * n_samples, "wall_s": wall,
+        "steps_per_s": steps / wall if wall > 0 else float("inf"),
         "swap_acceptance": (swaps_accepted / np.maximum(swaps_proposed, 1)).tolist(),
         **mixtures[0].diagnostics(),
     }

@@ -102,7 +102,8 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     elif inference["method"] == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
-                                   moves=moves, delayed_acceptance=inference["delayed_acceptance"])
+                                   chains=inference["chains"], moves=moves,
+                                   delayed_acceptance=inference["delayed_acceptance"])
     else:
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], moves=moves,

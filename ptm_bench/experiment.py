@@ -60,7 +60,7 @@ DEFAULTS = {
         "n_samples": 20000,
         "burn_in": 2000,
         "thin": 1,
-        "chains": 4,
+        "chains": 4,  # independent chains of "mcmc", independent ladders of "tempered"
         "prior_rate": None,  # None: the number of places of the world (generator meta "places")
         "delayed_acceptance": True,
         "exact_max_n": 10,

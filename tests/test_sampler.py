@@ -181,6 +181,17 @@ def test_parallel_tempering_matches_exact_posterior():
     assert all(0.0 < rate < 1.0 for rate in result.diagnostics["swap_acceptance"])
 
 
+def test_several_tempered_ladders_pool_and_report_convergence():
+    posterior = appearance_posterior()
+    result = ptm.tempered_mcmc(posterior, 8_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=5, chains=2)
+    assert result.diagnostics["chains"] == 2 and result.diagnostics["samples"] == 16_000
+    assert result.traces["log_prob"].shape == (2, 8_000)
+    assert ptm.total_variation(result, ptm.exact_posterior(posterior)) < TOLERANCE
+    assert result.diagnostics["rhat_log_prob"] < 1.05
+    one = ptm.tempered_mcmc(posterior, 200, temperatures=(1.0, 0.5), seed=5)
+    assert "rhat_log_prob" not in one.diagnostics  # a single ladder has nothing to compare with
+
+
 def test_parallel_tempering_negative_control_fails():
     posterior = appearance_posterior()
     result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5), burn_in=500, seed=4,
