@@ -162,8 +162,8 @@ class OdometryTerm:
         # glibc hands larger freed blocks back to the operating system by default, and faulting them in again
         # on every evaluation cost about 1 ms of the 5 at N = 100.
         chunks = math.ceil(model.n_importance * 3 * self.n * 8 / IMPORTANCE_CHUNK_BYTES)
-        self._sample_chunks = [slice(begin, begin + math.ceil(model.n_importance / chunks))
-                               for begin in range(0, model.n_importance, math.ceil(model.n_importance / chunks))]
+        chunk_size = math.ceil(model.n_importance / chunks)
+        self._sample_chunks = [slice(begin, begin + chunk_size) for begin in range(0, model.n_importance, chunk_size)]
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._last_solution = self._dead_reckoning
