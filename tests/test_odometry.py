@@ -222,6 +222,19 @@ def test_the_value_is_a_deterministic_function_of_the_partition():
     assert other_seed.log_likelihood(partitions[0]) != warm.log_likelihood(partitions[0])
 
 
+def test_weighting_the_samples_in_chunks_changes_nothing(monkeypatch):
+    dataset = square_loop_dataset(100, sigma_xy=0.2, sigma_theta=0.05)
+    model = ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 50.0, n_importance=100, seed=3)
+    chunked = model.bind(dataset)
+    monkeypatch.setattr(ptm.odometry, "IMPORTANCE_CHUNK_BYTES", 1 << 40)
+    whole = model.bind(dataset)
+    assert len(chunked._sample_chunks) > 1 and len(whole._sample_chunks) == 1
+    for labels in (dataset.labels, np.arange(100) % 7):
+        first, second = chunked.evaluate(labels), whole.evaluate(labels)
+        assert first.log_likelihood == pytest.approx(second.log_likelihood, rel=1e-12)
+        assert first.ess == pytest.approx(second.ess, rel=1e-9)
+
+
 def test_sparse_and_banded_low_rank_linear_algebra_agree():
     dataset = square_loop_dataset(14, sigma_xy=0.2, sigma_theta=0.05)
     labels = [0, 1, 2, 3, 0, 1, 2, 3, 0, 4, 2, 3, 0, 1]
