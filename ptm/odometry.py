@@ -230,7 +230,7 @@ class OdometryTerm:
     # -- internals ------------------------------------------------------------------------------
 
     def _warm_start(self, topology) -> np.ndarray:
-        """The lowest-energy start under ``labels`` among the last optimum, the optimum of the most
+        """The lowest-energy start under ``topology`` among the last optimum, the optimum of the most
         likely partition so far (a sampler's current state usually is one of the likely ones) and
         dead reckoning."""
         candidates = (self._last_solution, self._best_solution, self._dead_reckoning)
