@@ -35,12 +35,22 @@ __all__ = [
     "load_world",
     "palette_count",
     "palette_library",
+    "palette_signature",
     "parse_floorplan",
 ]
 
 WORLDS_DIR = Path(__file__).resolve().parent.parent / "worlds"
-SECTOR_COUNT = 4  # a palette colours the walls around a place in four compass sectors
+SECTOR_COUNT = 4  # a place's decor: four panels at its diagonals, one palette colour each
 ROBOT_CLEARANCE = 0.3  # [m] a place must leave this much room to the walls
+# What a camera sees (compiled by ptm_bench.scene): walls, floor and ceiling are one matte grey,
+# evenly lit, fading into a haze of the same grey, so the corridor layout is invisible; a place's
+# decor -- four panels at its diagonals, DECOR_RADIUS_PER_WIDTH x the narrowest corridor width
+# away, each PANEL_WIDTH_PER_RADIUS x that radius wide -- is all that tells places apart.
+SURROUNDINGS_RGB = (0.55, 0.55, 0.55)
+SURROUNDINGS_LUMA = 0.55
+DECOR_RADIUS_PER_WIDTH = 0.425
+PANEL_WIDTH_PER_RADIUS = 0.6
+PANEL_HALF_ANGLE_DEG = math.degrees(math.atan(PANEL_WIDTH_PER_RADIUS / 2))
 
 
 @dataclass(frozen=True)
@@ -55,22 +65,19 @@ class Corridor:
 
 @dataclass(frozen=True)
 class Palette:
-    """The look of a place: RGB colours of the walls in four sectors, of its floor marker and pillar.
+    """The decor of a place: RGB colours of its four panels and of its floor marker.
 
-    Sector j covers bearings [90j - 45, 90j + 45) degrees seen from the place,
-    measured from the place's frame (``Floorplan.place_frame``, fixed by the
-    corridor layout), so the pattern is a property of the place, not of the
-    robot's heading, and congruent places with one palette look alike. A
-    pillar prop in the marker colour stands against the wall at bearing
-    ``prop_bearing`` degrees in the same frame.
+    Panel j stands at bearing 45 + 90 j degrees seen from the place, measured
+    from the place's frame (``Floorplan.place_frame``, fixed by the corridor
+    layout), facing the place; so the pattern is a property of the place, not
+    of the robot's heading, and places with one palette look alike.
     """
 
     sectors: tuple[tuple[float, float, float], ...]
     marker: tuple[float, float, float]
-    prop_bearing: float = 45.0
 
     def luminance(self) -> np.ndarray:
-        """Luma of each sector colour (the quantity the grayscale signature sees)."""
+        """Luma of each panel colour (the quantity the grayscale signature sees)."""
         return np.asarray(self.sectors) @ np.array([0.299, 0.587, 0.114])
 
 
@@ -85,7 +92,6 @@ class Floorplan:
     routes: dict[str, tuple[str, ...]]
     palettes: tuple[Palette, ...] = ()
     detection_radius: float = 1.0
-    zone_radius: float = 3.0
     speed: float = 1.0
     lateral_jitter: float = 0.2
     description: str = ""
@@ -99,6 +105,11 @@ class Floorplan:
             return math.inf
         gaps = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
         return float(gaps[np.triu_indices(len(points), 1)].min())
+
+    @property
+    def decor_radius(self) -> float:
+        """Distance [m] of a place's decor panels from the place: a fixed share of the narrowest corridor."""
+        return DECOR_RADIUS_PER_WIDTH * min(corridor.width for corridor in self.corridors)
 
     def route_points(self, route: str = "main") -> np.ndarray:
         """The (R, 2) waypoint coordinates of a route."""
@@ -284,7 +295,6 @@ class _Reader:
         width = self.number(defaults, "corridor_width", "defaults.corridor_width", default=2.0)
         height = self.number(defaults, "wall_height", "defaults.wall_height", default=2.5)
         radius = self.number(defaults, "detection_radius", "defaults.detection_radius", default=1.0)
-        zone = self.number(defaults, "zone_radius", "defaults.zone_radius", default=3.0)
         speed = self.number(defaults, "speed", "defaults.speed", default=1.0)
         jitter = self.number(defaults, "lateral_jitter", "defaults.lateral_jitter", default=0.2, positive=False)
         if jitter < 0:
@@ -351,7 +361,6 @@ class _Reader:
                 Palette(
                     tuple(self.colour(colour, f"{path}.sectors") for colour in sectors),
                     self.colour(row.get("marker"), f"{path}.marker"),
-                    self.number(row, "prop_bearing", f"{path}.prop_bearing", default=45.0, positive=False),
                 )
             )
 
@@ -379,7 +388,6 @@ class _Reader:
             routes=routes,
             palettes=tuple(palettes),
             detection_radius=radius,
-            zone_radius=zone,
             speed=speed,
             lateral_jitter=jitter,
             description=str(document.get("description", "")),
@@ -436,9 +444,9 @@ def palette_library(count: int, rng: np.random.Generator, given=()) -> tuple[Pal
         luminances = rng.choice(levels, size=SECTOR_COUNT)
         sectors = tuple(_colour_with_luminance(rng, value) for value in luminances)
         marker = _colour_with_luminance(rng, rng.choice(levels))
-        pool.append(Palette(sectors, marker, float(rng.choice([45.0, 135.0, 225.0, 315.0]))))
-    pool_signatures = np.array([_ring_signature(p) for p in pool])
-    chosen_signatures = [_ring_signature(p) for p in chosen]
+        pool.append(Palette(sectors, marker))
+    pool_signatures = np.array([palette_signature(p) for p in pool])
+    chosen_signatures = [palette_signature(p) for p in chosen]
     if not chosen:
         chosen.append(pool[0])
         chosen_signatures.append(pool_signatures[0])
@@ -472,9 +480,13 @@ def _colour_with_luminance(rng: np.random.Generator, luminance: float) -> tuple[
     return tuple(float(v) for v in np.clip(rgb, 0.0, 1.0))
 
 
-def _ring_signature(palette: Palette, samples: int = 64) -> np.ndarray:
-    """The 5-coefficient Fourier magnitudes of a palette's sector luminances around a circle."""
-    ring = np.repeat(palette.luminance(), samples // SECTOR_COUNT)
+def palette_signature(palette: Palette, samples: int = 360) -> np.ndarray:
+    """The 5-coefficient Fourier magnitudes of a palette's idealised ring: four panels on the haze."""
+    bearings = (np.arange(samples) + 0.5) * 360.0 / samples
+    ring = np.full(samples, SURROUNDINGS_LUMA)
+    for index, luma in enumerate(palette.luminance()):
+        offset = np.abs((bearings - (45.0 + 90.0 * index) + 180.0) % 360.0 - 180.0)
+        ring[offset <= PANEL_HALF_ANGLE_DEG] = luma
     return np.abs(np.fft.rfft(ring)[:5]) / samples
 
 
@@ -537,7 +549,6 @@ def corridor_grid(
         places=places,
         routes={"main": tuple(name_of[cell] for cell in route)},
         detection_radius=detection_radius,
-        zone_radius=min(3.0, spacing / 2),
         speed=speed,
         description=f"procedural corridor grid ({rows}x{cols}, {loops} loops, density {place_density:g})",
         source="corridor_grid",

@@ -34,6 +34,7 @@ import ptm
 from ptm.dataset import wrap_angle
 from ptm.features import fourier_signature
 
+from .aliasing import signature_auc
 from .detector import detect
 from .floorplan import Floorplan, assign_palettes, load_world, palette_count, palette_library
 from .odometry_noise import OdometryNoise, detection_odometry, relative_pose, sample_odometry
@@ -45,7 +46,7 @@ import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
 __all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "register", "true_odometry"]
 
-GENERATOR_VERSION = "ptm_bench.generate/1"
+GENERATOR_VERSION = "ptm_bench.generate/2"  # 2: decor panels on a uniform, hazy background; near plane 3 cm
 
 
 def generate_dataset(
@@ -137,6 +138,7 @@ def generate_dataset(
     finally:
         rig_renderer.close()
 
+    labels = np.array([detection.place_id for detection in detections])
     true_poses = trajectory.poses[steps].copy()
     true_poses[:, 2] = wrap_angle(true_poses[:, 2])
     meta = {
@@ -145,6 +147,7 @@ def generate_dataset(
         "route": route,
         "route_length": floor.route_length(route),
         "aliasing": float(aliasing),
+        "aliasing_auc": signature_auc(signatures, labels),
         "noise": float(noise),
         "seed": int(seed),
         "generator_version": GENERATOR_VERSION,
@@ -172,7 +175,7 @@ def generate_dataset(
         odometry=odometry_rows if len(detections) > 1 else None,
         odometry_cov=odometry_cov if len(detections) > 1 else None,
         signatures=np.array(signatures),
-        labels=np.array([detection.place_id for detection in detections]),
+        labels=labels,
         true_poses=true_poses,
         panoramas=np.array(panoramas) if images else None,
         meta=meta,

@@ -221,27 +221,30 @@ class Rig:
                     "before mujoco"
                 ) from error
             raise
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = True  # the haze of ptm_bench.scene
         self.data = mujoco.MjData(model)
         self.camera_ids = [model.camera(f"cam_{index}").id for index in range(CAMERA_COUNT)]
 
     def views(self, qpos, light_gain: float = 1.0) -> list[np.ndarray]:
-        """The eight (H, W, 3) uint8 views with the base at joint state ``qpos``; ``light_gain`` scales the lights."""
+        """The eight (H, W, 3) uint8 views with the base at joint state ``qpos``.
+
+        ``light_gain`` scales the lights and the haze, which is lit by the same lights.
+        """
         self.data.qpos[:] = qpos
         mujoco.mj_forward(self.model, self.data)
-        saved = (self.model.vis.headlight.ambient.copy(), self.model.vis.headlight.diffuse.copy(),
-                 self.model.light_diffuse.copy())
-        self.model.vis.headlight.ambient[:] = saved[0] * light_gain
-        self.model.vis.headlight.diffuse[:] = saved[1] * light_gain
-        self.model.light_diffuse[:] = saved[2] * light_gain
+        lit = (self.model.vis.headlight.ambient, self.model.vis.headlight.diffuse, self.model.light_diffuse,
+               self.model.vis.rgba.fog[:3])
+        saved = [values.copy() for values in lit]
+        for values, original in zip(lit, saved):
+            values[:] = original * light_gain
         try:
             images = []
             for camera_id in self.camera_ids:
                 self.renderer.update_scene(self.data, camera=camera_id)
                 images.append(self.renderer.render().copy())
         finally:
-            self.model.vis.headlight.ambient[:] = saved[0]
-            self.model.vis.headlight.diffuse[:] = saved[1]
-            self.model.light_diffuse[:] = saved[2]
+            for values, original in zip(lit, saved):
+                values[:] = original
         return images
 
     def close(self) -> None:

@@ -100,7 +100,7 @@ def test_aliasing_one_shares_one_palette_and_zero_gives_each_place_its_own():
         looks = {}
         for geom in range(model.ngeom):
             name = model.geom(geom).name
-            if name.startswith("place_") and "_wall_" in name:
+            if name.startswith("place_") and "_panel_" in name:
                 looks.setdefault(int(name.split("_")[1]), set()).add(tuple(np.round(model.geom_rgba[geom], 4)))
         sets = [frozenset(colours) for colours in looks.values()]
         assert (len(set(sets)) == 1) == (distinct == 1)

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from ptm.features import fourier_signature
-from ptm_bench.floorplan import load_world
+from ptm_bench.floorplan import ROBOT_CLEARANCE, load_world
 from ptm_bench.generate import build_world
 from ptm_bench.panorama import CylindricalStitcher, add_pixel_noise
 from ptm_bench.robot import Rig, RigConfig
+from ptm_bench.scene import NEAR_PLANE
 
 SMALL = RigConfig(image_height=24, image_width=32)
 
@@ -95,3 +96,24 @@ def test_mujoco_imported_first_without_mujoco_gl_gets_a_clear_error():
                               timeout=120)
     assert finished.returncode != 0
     assert "set MUJOCO_GL=egl" in finished.stderr
+
+
+def test_a_wall_beside_the_robot_is_rendered_not_clipped():
+    """At the largest lateral offset a place allows (ROBOT_CLEARANCE from the wall), the camera facing the wall
+    sees only wall: MuJoCo's default near plane (1 % of the extent, 0.72 m in office) rendered through it."""
+    floor = load_world("office")
+    model, _, _ = build_world(floor, 0.0, np.random.default_rng(0), SMALL)
+    assert model.vis.map.znear * model.stat.extent == pytest.approx(NEAR_PLANE)
+    model.mat_rgba[model.material("surroundings").id] = (1.0, 0.0, 0.0, 1.0)  # walls red, haze and clear colour grey
+    model.vis.rgba.fog[:3] = (0.0, 0.0, 1.0)
+    x, y = floor.nodes["S"]  # the middle of the south corridor: walls at y = +-1 m
+    offset = 1.0 - ROBOT_CLEARANCE
+    rig = Rig(model, SMALL)
+    try:
+        qpos = np.zeros(model.nq)
+        qpos[:3] = (x + 2.0, y - offset, 0.0)  # heading east: cam_6 (bearing 270 degrees) faces the south wall
+        view = rig.views(qpos)[6].astype(int)
+    finally:
+        rig.close()
+    red = (view[..., 0] > 150) & (view[..., 1] < 60) & (view[..., 2] < 60)
+    assert red.all(), f"{np.count_nonzero(~red)} of {red.size} pixels are not wall"

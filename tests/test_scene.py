@@ -29,8 +29,9 @@ def test_every_floor_compiles_with_deterministic_names(floor):
     names = [model.geom(i).name for i in range(model.ngeom)]
     assert any(name.startswith("wall_") for name in names)
     for place_id in floor.places:
-        assert f"place_{place_id}_marker" in names and f"place_{place_id}_prop" in names
-        assert any(name.startswith(f"place_{place_id}_wall_") for name in names)
+        assert f"place_{place_id}_marker" in names
+        assert [name for name in names if name.startswith(f"place_{place_id}_panel_")] == [
+            f"place_{place_id}_panel_{index}" for index in range(4)]
     assert [model.camera(i).name for i in range(model.ncam)] == [f"cam_{i}" for i in range(8)]
     assert place_sites(model) == pytest.approx(floor.places)
 
@@ -42,12 +43,13 @@ def test_walls_leave_the_corridors_free():
     samples = np.concatenate([a + (b - a) * np.linspace(0, 1, 50)[:, None] for a, b in zip(route[:-1], route[1:])])
     for geom in range(model.ngeom):
         name = model.geom(geom).name
-        if "wall" not in name and "prop" not in name:
+        if "wall" not in name and "panel" not in name:
             continue
         centre, size = model.geom_pos[geom][:2], model.geom_size[geom]
         half = size[:2] if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_BOX else size[[0, 0]]
         gap = np.maximum(np.abs(samples - centre) - half, 0.0)
-        assert np.linalg.norm(gap, axis=1).min() >= 0.75, f"{name} intrudes on the route"
+        clearance = 0.75 if "wall" in name else 0.3  # panels stand inside the corridor, beside the route
+        assert np.linalg.norm(gap, axis=1).min() >= clearance, f"{name} intrudes on the route"
 
 
 def test_cameras_are_45_degrees_apart_on_the_mast():
@@ -77,9 +79,10 @@ def test_base_is_driven_along_the_route_by_the_physics():
     off_route = np.linalg.norm(trajectory.poses[:, None, :2] - dense[None], axis=2).min(axis=1)
     assert off_route.max() < 0.5 * 1.2 - 0.2  # inside the 1.2 m corridor with room for the chassis
     for place_id in floor.places:
-        pillar = model.geom(f"place_{place_id}_prop")
-        clearance = np.linalg.norm(trajectory.poses[:, :2] - pillar.pos[:2], axis=1).min() - pillar.size[0]
-        assert clearance > 0.15, f"the mast cameras would enter place_{place_id}_prop"
+        for index in range(4):
+            panel = model.geom(f"place_{place_id}_panel_{index}")
+            clearance = np.linalg.norm(trajectory.poses[:, :2] - panel.pos[:2], axis=1).min() - panel.size[0]
+            assert clearance > 0.1, f"the mast cameras would enter place_{place_id}_panel_{index}"
     steps = np.linalg.norm(np.diff(trajectory.poses[:, :2], axis=0), axis=1)
     assert steps.max() <= floor.speed * ControllerConfig().control_period * 1.05
     assert trajectory.poses[-1, 2] == pytest.approx(2 * 2 * math.pi - math.pi / 2, abs=0.2)  # two loops, facing south
