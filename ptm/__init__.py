@@ -12,7 +12,9 @@ and Dellaert, IEEE T-RO 2006; see SPEC.md for the corrected equations).
 """
 
 from . import features, moves
-from .appearance import AppearanceModel, inverse_gamma_from_mean_variance
+from .appearance import (AppearanceModel, inverse_gamma_from_mean_variance, leave_one_out_pit, pair_log_bayes_factor,
+                         pairwise_log_bayes_factors, predictive_log_density, predictive_pit)
+from .appearance_joint import JointAppearanceModel
 from .dataset import Dataset
 from .exact import exact_posterior
 from .odometry import OdometryModel
@@ -24,8 +26,10 @@ from .sampler import mcmc
 from .tempering import tempered_mcmc
 
 __all__ = [
-    "AppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
+    "AppearanceModel", "JointAppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
     "bell", "canonical", "exact_posterior", "features", "inverse_gamma_from_mean_variance",
+    "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
+    "predictive_pit",
     "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel",
 ]
 __version__ = "0.1.0"

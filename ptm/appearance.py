@@ -16,9 +16,20 @@ log P(A | T) sums this over sets and components. The paper's printed eq. (19)
 (exponent alpha + n/2 + 2, per-set constants dropped) is wrong — see the SPEC
 erratum — and is offered only as the ablation ``evidence="paper_eq19"``.
 
-    >>> model = AppearanceModel(mu=0.1, kappa=1.0, alpha=3.0, beta=0.01)
-    >>> term = model.bind(Dataset(signatures=signatures))
-    >>> term.block_log_likelihood((0, 3, 4))
+Predictive checks (any appearance term, this model or
+:class:`ptm.JointAppearanceModel`): the log Bayes factor of a pair "same place"
+vs "two places", log p({i, j}) - log p({i}) - log p({j}), and the posterior
+predictive of a held-out visit given the other visits of its place. For this
+model the predictive of component k given a set of n members is a Student t
+with 2 alpha_n degrees of freedom, location mu_n = (kappa mu + n mean) / kappa_n
+and squared scale beta_n (kappa_n + 1) / (alpha_n kappa_n), independently per
+component; :func:`leave_one_out_pit` returns the probability-integral
+transform of every held-out component (uniform if the model is calibrated).
+
+    >>> import numpy as np; from ptm import AppearanceModel, Dataset
+    >>> term = AppearanceModel(mu=0.3, kappa=1.0, alpha=3.0, beta=0.01).bind(Dataset(signatures=np.full((3, 2), 0.3)))
+    >>> round(term.block_log_likelihood((0, 1, 2)), 3), round(pair_log_bayes_factor(term, 0, 1), 3)
+    (10.437, 0.454)
 """
 
 from __future__ import annotations
@@ -27,12 +38,14 @@ import math
 
 import numpy as np
 from scipy.optimize import minimize
+from scipy import stats
 from scipy.special import gammaln
 
 from ._validation import finite_array, positive, positive_array
 from .partitions import Partition
 
-__all__ = ["AppearanceModel", "inverse_gamma_from_mean_variance"]
+__all__ = ["AppearanceModel", "IndependentStudentT", "inverse_gamma_from_mean_variance", "leave_one_out_pit",
+           "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density", "predictive_pit"]
 
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 
@@ -134,6 +147,7 @@ class AppearanceTerm:
 
     def __init__(self, model: AppearanceModel, signatures: np.ndarray):
         self.model = model
+        self.signatures = signatures
         width = signatures.shape[1]
         self._centred = signatures - model.mu
         self._centred_squared = self._centred ** 2
@@ -173,6 +187,128 @@ class AppearanceTerm:
 
     def log_likelihood(self, partition: Partition) -> float:
         return sum(self.block_log_likelihood(block) for block in partition.blocks)
+
+    def predictive(self, given=()) -> "IndependentStudentT":
+        """Posterior predictive of one more visit of the set ``given`` (the prior predictive if empty)."""
+        if self._paper_form:
+            raise ValueError("evidence='paper_eq19' is not a normalised model and has no predictive; "
+                             "use evidence='corrected'")
+        members = list(given)
+        n = len(members)
+        total = self._centred[members].sum(axis=0) if n else np.zeros_like(self._kappa)
+        squares = self._centred_squared[members].sum(axis=0) if n else np.zeros_like(self._kappa)
+        kappa_n = self._kappa + n
+        alpha_n = self._alpha + n / 2.0
+        beta_n = self._beta + 0.5 * (squares - total * total / kappa_n)
+        return IndependentStudentT(dof=2.0 * alpha_n, loc=self.model.mu + total / kappa_n,
+                                   scale=np.sqrt(beta_n * (kappa_n + 1.0) / (alpha_n * kappa_n)))
+
+
+class IndependentStudentT:
+    """A product of univariate Student t distributions, one per signature component.
+
+    Parameters
+    ----------
+    dof, loc, scale : (K,) arrays
+        Degrees of freedom, location and scale (not variance) of each component.
+    """
+
+    def __init__(self, dof, loc, scale):
+        self.dof, self.loc, self.scale = (np.asarray(v, dtype=float) for v in np.broadcast_arrays(dof, loc, scale))
+
+    def logpdf(self, x) -> float:
+        """Joint log density of one K-vector (sum of the components' log densities)."""
+        return float(np.sum(stats.t.logpdf(np.asarray(x, dtype=float), self.dof, self.loc, self.scale)))
+
+    def marginal_cdf(self, x) -> np.ndarray:
+        """Per-component CDF of one K-vector: its probability-integral-transform values."""
+        return stats.t.cdf(np.asarray(x, dtype=float), self.dof, self.loc, self.scale)
+
+    def __repr__(self) -> str:
+        return f"IndependentStudentT(dof={self.dof}, loc={self.loc}, scale={self.scale})"
+
+
+# -- predictive checks, for any appearance term ------------------------------------------------------
+
+
+def pair_log_bayes_factor(term, i: int, j: int) -> float:
+    """log p({i, j}) - log p({i}) - log p({j}): > 0 favours "i and j are the same place".
+
+    ``term`` is any bound appearance term (``model.bind(dataset)``) with
+    ``block_log_likelihood``: :class:`AppearanceModel` or :class:`ptm.JointAppearanceModel`.
+    """
+    i, j = _detection(term, i), _detection(term, j)
+    if i == j:
+        raise ValueError(f"a pair needs two different detections, got i = j = {i}")
+    pair = (min(i, j), max(i, j))
+    return float(term.block_log_likelihood(pair) - term.block_log_likelihood((i,)) - term.block_log_likelihood((j,)))
+
+
+def pairwise_log_bayes_factors(term) -> np.ndarray:
+    """(N, N) symmetric matrix of :func:`pair_log_bayes_factor`, NaN on the diagonal."""
+    n = term.signatures.shape[0]
+    singles = np.array([term.block_log_likelihood((i,)) for i in range(n)])
+    matrix = np.full((n, n), np.nan)
+    for i in range(n):
+        for j in range(i + 1, n):
+            matrix[i, j] = matrix[j, i] = term.block_log_likelihood((i, j)) - singles[i] - singles[j]
+    return matrix
+
+
+def predictive_log_density(term, held_out: int, given) -> float:
+    """log p(a_held_out | a_given): the posterior predictive density of one visit given a set.
+
+    ``given`` may be empty (the prior predictive). Equals
+    log p(given + {held_out}) - log p(given) (the chain rule of the evidence).
+    """
+    held_out, given = _held_out_and_given(term, held_out, given)
+    return term.predictive(given).logpdf(term.signatures[held_out])
+
+
+def predictive_pit(term, held_out: int, given) -> np.ndarray:
+    """(K,) probability-integral-transform values of visit ``held_out`` under the predictive given ``given``.
+
+    Component k's value is the marginal predictive CDF at the observed a_k
+    (Student t, see the module docstrings); over many held-out visits a
+    calibrated model gives values uniform on (0, 1), an overconfident one piles
+    them up near 0 and 1.
+    """
+    held_out, given = _held_out_and_given(term, held_out, given)
+    return term.predictive(given).marginal_cdf(term.signatures[held_out])
+
+
+def leave_one_out_pit(term, labels) -> np.ndarray:
+    """(N, K) PIT of every detection given the other visits of its place (ground-truth ``labels``).
+
+    A row is NaN when its detection is the only visit of its place (nothing to
+    condition on; those visits test the prior, not the within-place model).
+    """
+    labels = np.asarray(labels)
+    n, width = term.signatures.shape
+    if labels.shape != (n,):
+        raise ValueError(f"labels must have shape ({n},) to match the term's signatures, got {labels.shape}")
+    pit = np.full((n, width), np.nan)
+    for block in Partition.from_labels(labels).blocks:
+        if len(block) < 2:
+            continue
+        for held_out in block:
+            pit[held_out] = predictive_pit(term, held_out, [i for i in block if i != held_out])
+    return pit
+
+
+def _detection(term, index) -> int:
+    n = term.signatures.shape[0]
+    if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)) or not 0 <= index < n:
+        raise ValueError(f"detection index must be an integer in [0, {n}), got {index!r}")
+    return int(index)
+
+
+def _held_out_and_given(term, held_out, given) -> tuple[int, tuple]:
+    held_out = _detection(term, held_out)
+    given = tuple(sorted(_detection(term, i) for i in given))
+    if held_out in given or len(set(given)) != len(given):
+        raise ValueError(f"given must list distinct detections other than held_out={held_out}, got {given}")
+    return held_out, given
 
 
 def _component_evidence(params: np.ndarray, groups: list[np.ndarray], evidence: str) -> float:
