@@ -6,12 +6,19 @@
   the detections (at their dead-reckoned positions), detections of one place joined,
   titled with their probabilities (paper Figs. 10, 13, 14, 17, 18).
 * :func:`mass_heatmap` — mean posterior mass on the ground truth over
-  aliasing x noise, one panel per model variant.
+  aliasing x noise, one panel per model variant; where the table has the
+  measured aliasing (``aliasing_auc``), each aliasing level is labelled with
+  its mean AUC over the distinct datasets, e.g. "0.5 (AUC 0.81)".
+* :func:`reliability_diagram` — per variant, the observed frequency of "same
+  place" against the mean predicted co-assignment probability in each bin of a
+  pooled reliability table (:func:`ptm_bench.scoring.reliability_table`), the
+  diagonal for reference, and the pairs per bin in a lower panel.
 * :func:`sampler_traces` — log P(T | Z) and the number of places along each chain.
 
     >>> trajectories(dataset, Path("results/exp3_nested/trajectory.png"), title="nested_loops, seed 0")
     >>> top_topologies(dataset.true_poses, [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=Path("top.png"))
     >>> mass_heatmap(table, Path("results/grid/heatmap.png"))
+    >>> reliability_diagram({"odometry": pooled_reliability(table["reliability"])}, Path("reliability.png"))
 """
 
 from __future__ import annotations
@@ -24,13 +31,14 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ptm.dataset import atomic_write  # noqa: E402
 
 from .baselines import dead_reckoning  # noqa: E402
 
-__all__ = ["mass_heatmap", "sampler_traces", "top_topologies", "topology_string", "trajectories"]
+__all__ = ["mass_heatmap", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string", "trajectories"]
 
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
 
@@ -113,7 +121,10 @@ def mass_heatmap(table, path: Path, value: str = "gt_mass") -> Path:
     if not variants:
         raise ValueError("mass_heatmap: no finished cells to draw")
     aliasing, noise = sorted(ok["aliasing"].unique()), sorted(ok["noise"].unique())
-    figure, axes_row = plt.subplots(1, len(variants), figsize=(3.4 * len(variants) + 1, 3.4), squeeze=False)
+    aliasing_labels = _aliasing_labels(ok, aliasing)
+    # Constrained layout leaves room for long "0.5 (AUC 0.81)" tick labels and the shared colorbar.
+    figure, axes_row = plt.subplots(1, len(variants), figsize=(3.4 * len(variants) + 1.8, 3.6), squeeze=False,
+                                    sharey=True, layout="constrained")
     for axes, variant in zip(axes_row[0], variants):
         means = ok[ok["variant"] == variant].pivot_table(index="aliasing", columns="noise", values=value, aggfunc="mean")
         grid = means.reindex(index=aliasing, columns=noise).to_numpy(dtype=float)
@@ -123,13 +134,69 @@ def mass_heatmap(table, path: Path, value: str = "gt_mass") -> Path:
                 axes.text(column, row, f"{number:.2f}", ha="center", va="center", fontsize=8,
                           color="w" if number < 0.5 else "k")
         axes.set_xticks(range(len(noise)), [f"{x:g}" for x in noise])
-        axes.set_yticks(range(len(aliasing)), [f"{x:g}" for x in aliasing])
+        axes.set_yticks(range(len(aliasing)), aliasing_labels)
+        axes.tick_params(labelleft=axes is axes_row[0, 0])
         axes.set_xlabel("noise level")
         axes.set_title(variant, fontsize=9)
-    axes_row[0, 0].set_ylabel("aliasing")
+    measured = any("AUC" in label for label in aliasing_labels)
+    axes_row[0, 0].set_ylabel("aliasing knob (measured AUC)" if measured else "aliasing")
     figure.colorbar(image, ax=axes_row[0].tolist(), shrink=0.8, label=f"mean {value}")
     figure.suptitle(f"{value} over aliasing x noise (mean over seeds)", fontsize=10)
     return _save(figure, path, tight=False)
+
+
+def _aliasing_labels(ok, aliasing) -> list[str]:
+    """Tick labels of the aliasing levels: "0.5 (AUC 0.81)" where the measured AUC is known, else "0.5"."""
+    if "aliasing_auc" not in ok:
+        return [f"{level:g}" for level in aliasing]
+    # One value per dataset: the variants of a dataset repeat its AUC, and some may have failed.
+    datasets = ok.drop_duplicates(subset=[column for column in ("world", "aliasing", "noise", "seed") if column in ok])
+    labels = []
+    for level in aliasing:
+        values = np.asarray(datasets.loc[datasets["aliasing"] == level, "aliasing_auc"], dtype=float)
+        values = values[np.isfinite(values)]
+        labels.append(f"{level:g} (AUC {values.mean():.2f})" if values.size else f"{level:g}")
+    return labels
+
+
+def reliability_diagram(tables: dict, path: Path, title: str = "") -> Path:
+    """Observed frequency vs mean predicted probability per bin, one line per variant, with the pairs per bin.
+
+    ``tables`` maps a variant name to its reliability table, a ``(bins, 3)``
+    array of [pairs, sum of predicted probabilities, sum of outcomes] per
+    equal-width bin of [0, 1]. Empty bins are left out of the line.
+    """
+    if not tables:
+        raise ValueError("reliability_diagram: no reliability tables to draw")
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(6, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
+    top.plot([0, 1], [0, 1], ":", color="0.5", lw=1, label="calibrated")
+    bins = None
+    for index, (variant, table) in enumerate(tables.items()):
+        table = np.asarray(table, dtype=float)
+        if table.ndim != 2 or table.shape[1] != 3:
+            raise ValueError(f"reliability_diagram: the table of {variant!r} must have shape (bins, 3), "
+                             f"got {table.shape}")
+        bins = table.shape[0]
+        counts = table[:, 0]
+        filled = counts > 0
+        colour = plt.get_cmap("tab10")(index % 10)
+        top.plot(table[filled, 1] / counts[filled], table[filled, 2] / counts[filled], "o-", color=colour,
+                 label=variant, ms=4, lw=1.2)
+        edges = np.linspace(0.0, 1.0, bins + 1)
+        # Step lines, not bars: several variants' counts stay readable on one log axis.
+        bottom.stairs(np.where(filled, counts, np.nan), edges, color=colour, lw=1.2)
+    top.set_xlim(0, 1)
+    top.set_ylim(-0.02, 1.02)
+    top.set_ylabel("observed frequency (same place)")
+    top.legend(fontsize=7, loc="best")
+    top.set_title(title or f"reliability of co-assignment probabilities ({bins} bins)", fontsize=10)
+    bottom.set_yscale("log")
+    bottom.yaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+    bottom.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda value, _: f"{value:g}"))
+    bottom.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    bottom.set_xlabel("predicted probability P(i and j are the same place)")
+    bottom.set_ylabel("pairs per bin")
+    return _save(figure, path)
 
 
 def sampler_traces(traces: dict, path: Path, title: str = "") -> Path:

@@ -13,33 +13,67 @@ computes
 * loop-closure precision, recall and F1 at a co-assignment threshold, and the
   average precision of the pairs ranked by their co-assignment probability
   ("i and j are the same place", SPEC §3.6);
-* the expected and the true number of places.
+* the expected and the true number of places;
+* calibration (SPEC §6): the log score of the truth, log max(gt_mass, 1e-6)
+  (:data:`LOG_SCORE_FLOOR`); whether the run is *confidently wrong* (its MAP
+  has probability >= 0.9, :data:`CONFIDENT`, and is not the truth); and, for
+  the N(N-1)/2 pairs i < j with probability p = P(i and j are the same place)
+  and outcome y = 1 if the truth puts them at one place, else 0, the Brier
+  score mean (p - y)^2, the ECE of the cell's own pairs, and a reliability
+  table: per bin b of 10 equal-width bins of p, [n_b, sum of p, sum of y]
+  (:func:`calibration_scores` lists the columns).
+
+The reliability table makes the expected calibration error of a whole sweep
+exact from per-cell rows: tables of cells add bin by bin
+(:func:`pooled_reliability`), and the ECE of a table is
+ECE = sum_b (n_b / n) |mean p_b - mean y_b| = sum_b |sum p_b - sum y_b| / n
+(:func:`expected_calibration_error`); a sweep's Brier score is the mean of
+the cells' ``brier`` weighted by their ``n_pairs``.
 
     >>> row = score({(0, 1, 0): 0.75, (0, 1, 2): 0.25}, truth=[0, 1, 0])
-    >>> row["gt_mass"], row["gt_rank"], row["map_correct"]
-    (0.75, 1, True)
+    >>> row["gt_mass"], row["gt_rank"], row["map_correct"], row["confidently_wrong"]
+    (0.75, 1, True, False)
+    >>> expected_calibration_error(pooled_reliability(table["reliability"]))
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from math import comb, isclose, nan
+import json
+from collections.abc import Iterable, Mapping
+from math import comb, isclose, log, nan
 
 import numpy as np
 
 from ptm.partitions import canonical
 
 __all__ = [
+    "CONFIDENT",
+    "LOG_SCORE_FLOOR",
+    "RELIABILITY_BINS",
     "adjusted_rand_index",
+    "calibration_scores",
     "coassignment_matrix",
     "distribution_of",
+    "expected_calibration_error",
     "ground_truth_rank",
     "loop_closure_scores",
     "point_mass",
+    "pooled_reliability",
+    "reliability_table",
     "score",
 ]
 
 _PROBABILITY_TOLERANCE = 1e-6
+
+#: Equal-width bins of the reliability diagram over [0, 1]; the last bin is closed (p = 1 falls in it).
+RELIABILITY_BINS = 10
+#: The smallest mass the log score counts: log(gt_mass) is floored at log(1e-6) = -13.8, so a truth the
+#: sampler never visited (mass 0, or a baseline's wrong point mass) scores finitely. An MCMC histogram of
+#: S samples cannot resolve masses below 1/S (the default config keeps 4 chains x 2e4 samples), so the floor
+#: sits below every mass a sample can give and only ever acts on "never visited" (or an exact mass below 1e-6).
+LOG_SCORE_FLOOR = 1e-6
+#: A run is confidently wrong when its most probable topology has at least this probability and is not the truth.
+CONFIDENT = 0.9
 
 
 def point_mass(labels) -> dict[tuple[int, ...], float]:
@@ -165,16 +199,122 @@ def _average_precision(scores: np.ndarray, positives: np.ndarray) -> float:
     return float(np.sum(recall_gain * hits / pairs))
 
 
-def score(distribution: Mapping, truth, threshold: float = 0.5, coassignment=None) -> dict:
-    """Every accuracy score of one distribution over partitions against the true labels.
+def reliability_table(probabilities, outcomes, bins: int = RELIABILITY_BINS) -> np.ndarray:
+    """Per equal-width bin of ``probabilities`` over [0, 1]: [count, sum of probabilities, sum of outcomes].
 
-    ``coassignment`` may pass the distribution's co-assignment matrix when it is
-    already known (``PTM.coassignment()``), instead of recomputing it here.
+    A ``(bins, 3)`` float array; tables of disjoint sets of pairs add. ``outcomes``
+    are 0/1 (or booleans). Bin b holds edges[b] <= p < edges[b + 1] with
+    ``edges = np.linspace(0, 1, bins + 1)``, the last bin closed (``numpy.histogram``'s
+    convention). Probabilities within 1e-6 of [0, 1] (float round-off of a sum
+    of sample weights) are clipped into it; others are an error.
+    """
+    probabilities = np.asarray(probabilities, dtype=float).ravel()
+    outcomes = np.asarray(outcomes, dtype=float).ravel()
+    if probabilities.shape != outcomes.shape:
+        raise ValueError(f"reliability_table: {probabilities.size} probabilities but {outcomes.size} outcomes")
+    if not np.all(np.isfinite(probabilities)) or np.any(probabilities < -_PROBABILITY_TOLERANCE) \
+            or np.any(probabilities > 1.0 + _PROBABILITY_TOLERANCE):
+        raise ValueError(f"reliability_table: probabilities must lie in [0, 1], got values from "
+                         f"{np.min(probabilities)!r} to {np.max(probabilities)!r}")
+    if not np.all((outcomes == 0.0) | (outcomes == 1.0)):
+        raise ValueError("reliability_table: outcomes must be 0 or 1")
+    if bins < 1:
+        raise ValueError(f"reliability_table: bins must be >= 1, got {bins}")
+    probabilities = np.clip(probabilities, 0.0, 1.0)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    return np.stack([
+        np.histogram(probabilities, bins=edges)[0].astype(float),
+        np.histogram(probabilities, bins=edges, weights=probabilities)[0],
+        np.histogram(probabilities, bins=edges, weights=outcomes)[0],
+    ], axis=1)
+
+
+def pooled_reliability(tables: Iterable) -> np.ndarray:
+    """The sum of reliability tables (arrays, or their JSON as in the ``reliability`` column); NaN entries skipped.
+
+    Raises ``ValueError`` when there is no table to pool or the tables have different numbers of bins.
+    """
+    total = None
+    for table in tables:
+        if table is None or (isinstance(table, float) and np.isnan(table)):
+            continue
+        array = np.asarray(json.loads(table) if isinstance(table, str) else table, dtype=float)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise ValueError(f"a reliability table has shape (bins, 3), got {array.shape}")
+        if total is not None and array.shape != total.shape:
+            raise ValueError(f"reliability tables of {total.shape[0]} and {array.shape[0]} bins cannot be pooled")
+        total = array if total is None else total + array
+    if total is None:
+        raise ValueError("pooled_reliability: no reliability table to pool")
+    return total
+
+
+def expected_calibration_error(table) -> float:
+    """ECE = sum_b (n_b / n) |mean p_b - mean y_b| of a reliability table (array or JSON); NaN when n = 0."""
+    table = np.asarray(json.loads(table) if isinstance(table, str) else table, dtype=float)
+    total = table[:, 0].sum()
+    if total == 0.0:
+        return nan
+    # (n_b / n) |s_b / n_b - o_b / n_b| = |s_b - o_b| / n, and empty bins add 0.
+    return float(np.abs(table[:, 1] - table[:, 2]).sum() / total)
+
+
+def calibration_scores(distribution: Mapping, truth, coassignment=None) -> dict:
+    """The calibration columns of a row: Brier score, pairs, reliability table (JSON), log score, confidently wrong.
+
+    * ``n_pairs``: N (N - 1) / 2, the pairs i < j scored;
+    * ``brier``: mean over the pairs of (p_ij - y_ij)^2 (NaN without pairs);
+    * ``ece``: the expected calibration error of this cell's pairs alone (NaN without pairs);
+    * ``reliability``: JSON ``[[n_b, sum p, sum y], ...]`` over :data:`RELIABILITY_BINS` bins;
+    * ``log_score``: log max(P(truth), :data:`LOG_SCORE_FLOOR`);
+    * ``map_mass``: the probability of the most probable topology;
+    * ``confidently_wrong``: ``map_mass`` >= :data:`CONFIDENT` and the MAP is not the truth.
     """
     truth = canonical(truth)
     probabilities = _validated(distribution, n=len(truth))
-    # The most probable partition; ties go to the lexicographically smallest labels, for determinism.
-    map_labels = max(probabilities.items(), key=lambda item: (item[1], [-label for label in item[0]]))[0]
+    if coassignment is None:
+        coassignment = coassignment_matrix(probabilities)
+    return _calibration(probabilities, truth, coassignment)
+
+
+def _calibration(probabilities: dict, truth: tuple[int, ...], coassignment) -> dict:
+    matrix = np.asarray(coassignment, dtype=float)
+    n = len(truth)
+    if matrix.shape != (n, n):
+        raise ValueError(f"coassignment must have shape ({n}, {n}), got {matrix.shape}")
+    upper = np.triu_indices(n, k=1)
+    labels = np.asarray(truth)
+    predicted = matrix[upper]
+    outcomes = (labels[:, None] == labels[None, :])[upper].astype(float)
+    table = reliability_table(predicted, outcomes)
+    clipped = np.clip(predicted, 0.0, 1.0)
+    map_labels, map_mass = _map(probabilities)
+    return {
+        "n_pairs": int(predicted.size),
+        "brier": float(np.mean((clipped - outcomes) ** 2)) if predicted.size else nan,
+        "ece": expected_calibration_error(table),
+        "reliability": json.dumps(table.tolist()),
+        "log_score": log(max(probabilities.get(truth, 0.0), LOG_SCORE_FLOOR)),
+        "map_mass": map_mass,
+        "confidently_wrong": bool(map_mass >= CONFIDENT and map_labels != truth),
+    }
+
+
+def _map(probabilities: dict) -> tuple[tuple[int, ...], float]:
+    """The most probable partition and its probability; ties go to the lexicographically smallest labels."""
+    return max(probabilities.items(), key=lambda item: (item[1], [-label for label in item[0]]))
+
+
+def score(distribution: Mapping, truth, threshold: float = 0.5, coassignment=None) -> dict:
+    """Every accuracy and calibration score of one distribution over partitions against the true labels.
+
+    ``coassignment`` may pass the distribution's co-assignment matrix when it is
+    already known (``PTM.coassignment()``), instead of recomputing it here.
+    The calibration columns are those of :func:`calibration_scores`.
+    """
+    truth = canonical(truth)
+    probabilities = _validated(distribution, n=len(truth))
+    map_labels, _ = _map(probabilities)  # ties to the lexicographically smallest labels, for determinism
     row = {
         "gt_mass": probabilities.get(truth, 0.0),
         "gt_rank": ground_truth_rank(probabilities, truth),
@@ -189,4 +329,5 @@ def score(distribution: Mapping, truth, threshold: float = 0.5, coassignment=Non
     if coassignment is None:
         coassignment = coassignment_matrix(probabilities)
     row.update(loop_closure_scores(coassignment, truth, threshold))
+    row.update(_calibration(probabilities, truth, coassignment))
     return row

@@ -1,12 +1,25 @@
 """The report of an experiment: ``summary.md`` with its tables and figures (SPEC §6).
 
-From the sweep table (``cells.csv``) this module aggregates, per world,
-aliasing, noise and variant, the scores over seeds — mean ground-truth mass
-with its range, median rank, how often the MAP is the truth, ARI, loop-closure
-F1 and average precision, expected vs true number of places, wall time — puts
-the paper's reported figures (the config's ``[paper]`` table) side by side
-with ours, lists failed cells with their errors, and draws the figures of
-:mod:`ptm_bench.plots` for the first scored seed.
+From the sweep table (``cells.csv``) this module first keeps exactly the
+cells of the current config (:func:`current_rows`: rows of cells no longer in
+the config, or computed under an edited one, are left out and counted), then
+aggregates, per world, aliasing, noise and variant, the scores over seeds —
+mean ground-truth mass with its range, median rank, how often the MAP is the
+truth, ARI, loop-closure F1 and average precision, expected vs true number of
+places, wall time, and the measured aliasing of the datasets (``aliasing_auc``,
+the AUC of signature distance for same- vs different-place pairs) beside the
+aliasing knob. Per variant it pools the calibration of the probabilities over
+every cell (:func:`calibration_by_variant`): the expected calibration error
+ECE = sum_b (n_b / n) |mean p_b - mean y_b| of the pairwise co-assignment
+probabilities over 10 bins, exact from the per-cell ``reliability`` tables
+(:func:`ptm_bench.scoring.pooled_reliability`); the Brier score, the mean of
+the cells' ``brier`` weighted by ``n_pairs``; the mean log score of the truth,
+log max(gt_mass, 1e-6); and the share of confidently wrong runs (MAP
+probability >= 0.9, MAP not the truth). It puts the paper's reported figures
+(the config's ``[paper]`` table) beside ours, lists where each variant's
+parameters came from (the ``source_*`` columns), lists failed cells with their
+errors, and draws the figures of :mod:`ptm_bench.plots`: those of the first
+scored seed, the ground-truth-mass heat map, and the reliability diagram.
 
     >>> table = read_table("results/exp3_nested/cells.csv")
     >>> write_summary(load_experiment("experiments/exp3_nested.toml"), table, Path("results/exp3_nested"))
@@ -25,24 +38,61 @@ import pandas as pd
 
 from ptm.dataset import atomic_write
 
-from . import plots
+from . import plots, scoring
 from .baselines import dead_reckoning
 from .datacache import dataset_for
-from .experiment import Experiment
+from .experiment import Experiment, expand_cells
 
-__all__ = ["aggregate", "markdown_table", "write_summary"]
+__all__ = ["aggregate", "calibration_by_variant", "current_rows", "markdown_table", "write_summary"]
 
 CONDITION = ["world", "aliasing", "noise"]
+#: The measured aliasing of a cell's dataset, shown beside the aliasing knob when the table has it.
+MEASURED_ALIASING = "aliasing_auc"
+#: Columns that say where a parameter of a cell came from: ``source_<parameter>``.
+SOURCE_PREFIX = "source_"
+
+
+def current_rows(experiment: Experiment, table: pd.DataFrame, results_dir: Path) -> tuple[pd.DataFrame, dict]:
+    """The rows of ``table`` that are cells of the current config, and counts of what was left out.
+
+    A row is left out when its ``cell_id`` is not among the config's cells
+    (``stale``: a seed, level or variant since removed) or when it records a
+    ``definition`` digest other than its cell's (``edited``: computed under an
+    edited config). Rows without a recorded definition (tables from before
+    definitions existed) are kept, as the sweep reuses them. ``missing``
+    counts the config's cells that have no row.
+    """
+    cells = expand_cells(experiment, Path(results_dir))
+    definitions = {str(cell["cell_id"]): cell.get("definition") for cell in cells}
+    if not len(table):
+        return table, {"stale": 0, "edited": 0, "missing": len(cells)}
+    if "cell_id" not in table.columns:
+        raise ValueError("the table has no cell_id column: not a sweep table")
+    cell_ids = table["cell_id"].astype(str)
+    known = cell_ids.isin(definitions)
+    recorded = table["definition"] if "definition" in table.columns else pd.Series(None, index=table.index)
+    edited = pd.Series([_edited(digest, definitions.get(cell_id)) for cell_id, digest in zip(cell_ids, recorded)],
+                       index=table.index, dtype=bool)
+    kept = table[known & ~edited]
+    counts = {"stale": int((~known).sum()), "edited": int(edited.sum()),
+              "missing": len(set(definitions) - set(kept["cell_id"].astype(str)))}
+    return kept, counts
+
+
+def _edited(recorded, current) -> bool:
+    """Whether a row was computed under another config than its cell's; unknown (no digest) counts as not."""
+    return isinstance(recorded, str) and isinstance(current, str) and recorded != current
 
 
 def aggregate(table: pd.DataFrame) -> pd.DataFrame:
     """One row per world x aliasing x noise x variant: scores summarised over the finished seeds."""
-    ok = table[table["status"] == "ok"]
+    ok = _with_calibration(table[table["status"] == "ok"]) if len(table) else table
     rows = []
-    for key, group in ok.groupby(CONDITION + ["variant"], sort=False):
+    for key, group in (ok.groupby(CONDITION + ["variant"], sort=False) if len(ok) else []):
         rank = group["gt_rank"]
         rows.append({
             **dict(zip(CONDITION + ["variant"], key)),
+            MEASURED_ALIASING: _mean(group, MEASURED_ALIASING),
             "models": group["models"].iloc[0],
             "method": group["method"].iloc[0],
             "seeds": len(group),
@@ -61,8 +111,92 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             # Chains that disagree (split R-hat of log P above 1.1) make the masses above unreliable.
             "rhat_over_1.1": _fraction_above(group, "diag_rhat_log_prob", 1.1),
             "wall_s": group["wall_s"].mean(),
+            **_pooled_calibration(group),
         })
     return pd.DataFrame(rows)
+
+
+def calibration_by_variant(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per variant, pooled over every finished cell: the accuracy means beside the calibration scores.
+
+    ``ece`` and ``brier`` pool every pair i < j of every cell (``n_pairs`` of
+    them, from the cells that carry a ``reliability`` table); ``log_score`` is
+    the mean over cells of log max(gt_mass, 1e-6); ``confidently_wrong`` the
+    share of cells whose MAP has probability >= 0.9 and is not the truth.
+    """
+    ok = _with_calibration(table[table["status"] == "ok"]) if len(table) else table
+    rows = []
+    for variant, group in (ok.groupby("variant", sort=False) if len(ok) else []):
+        rows.append({
+            "variant": variant,
+            "method": group["method"].iloc[0],
+            "cells": len(group),
+            "gt_mass": group["gt_mass"].mean(),
+            "map_correct": group["map_correct"].astype(bool).mean(),
+            "ari": group["ari"].mean(),
+            "lc_ap": group["lc_ap"].mean(),
+            **_pooled_calibration(group),
+        })
+    return pd.DataFrame(rows)
+
+
+def _with_calibration(ok: pd.DataFrame) -> pd.DataFrame:
+    """``ok`` with ``log_score`` and ``confidently_wrong`` filled in, from ``gt_mass`` and ``top5``, where absent.
+
+    Rows of tables written before these columns existed lack them; both follow
+    from columns every row has (``top5`` lists the most probable topology first).
+    """
+    ok = ok.copy()
+    derived_log = np.log(np.maximum(ok["gt_mass"].astype(float), scoring.LOG_SCORE_FLOOR))
+    ok["log_score"] = ok["log_score"].astype(float).fillna(derived_log) if "log_score" in ok else derived_log
+    derived_wrong = pd.Series([_confidently_wrong(top5, truth) for top5, truth in
+                               zip(ok.get("top5", pd.Series(None, index=ok.index)),
+                                   ok.get("true_labels", pd.Series(None, index=ok.index)))],
+                              index=ok.index, dtype=object)
+    if "confidently_wrong" in ok:
+        recorded = ok["confidently_wrong"].astype(object)
+        ok["confidently_wrong"] = recorded.where(recorded.notna(), derived_wrong)
+    else:
+        ok["confidently_wrong"] = derived_wrong
+    return ok
+
+
+def _confidently_wrong(top5, truth):
+    if not isinstance(top5, str) or not isinstance(truth, str):
+        return None
+    topologies = json.loads(top5)
+    if not topologies:
+        return None
+    labels, probability = topologies[0]
+    return bool(probability >= scoring.CONFIDENT and tuple(labels) != tuple(json.loads(truth)))
+
+
+def _pooled_calibration(group: pd.DataFrame) -> dict:
+    """ECE and Brier pooled over the pairs of every row that has them; mean log score; confidently-wrong share."""
+    has_pairs = group[group["reliability"].apply(lambda value: isinstance(value, str))] if "reliability" in group \
+        else group.iloc[:0]
+    n_pairs = float(has_pairs["n_pairs"].sum()) if len(has_pairs) else 0.0
+    ece = brier = math.nan
+    if n_pairs:
+        ece = scoring.expected_calibration_error(scoring.pooled_reliability(has_pairs["reliability"]))
+        weighted = has_pairs[has_pairs["n_pairs"] > 0]
+        brier = float((weighted["brier"] * weighted["n_pairs"]).sum() / weighted["n_pairs"].sum())
+    wrong = group["confidently_wrong"].dropna() if "confidently_wrong" in group else pd.Series(dtype=object)
+    return {
+        "n_pairs": int(n_pairs),
+        "ece": ece,
+        "brier": brier,
+        "log_score": _mean(group, "log_score"),
+        "confidently_wrong": float(wrong.astype(bool).mean()) if len(wrong) else math.nan,
+    }
+
+
+def _mean(group: pd.DataFrame, column: str) -> float:
+    """The mean of ``column`` over the rows that have it; NaN when the column is absent or empty."""
+    if column not in group:
+        return math.nan
+    values = pd.to_numeric(group[column], errors="coerce").dropna()
+    return float(values.mean()) if len(values) else math.nan
 
 
 def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
@@ -88,10 +222,22 @@ def markdown_table(frame: pd.DataFrame) -> str:
     return "\n".join([header, rule, *body])
 
 
+def _condition_columns(frame: pd.DataFrame) -> list[str]:
+    """The condition columns, with the measured aliasing beside the knob when any value of it is known."""
+    if _has_measured_aliasing(frame):
+        return ["world", "aliasing", MEASURED_ALIASING, "noise"]
+    return list(CONDITION)
+
+
 def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path, figures: bool = True) -> Path:
-    """Write ``summary.md`` (and, with ``figures``, the PNG figures) into ``results_dir``."""
+    """Write ``summary.md`` (and, with ``figures``, the PNG figures) into ``results_dir``.
+
+    Only the rows of the current config's cells are summarised (:func:`current_rows`);
+    the summary says how many rows of ``table`` it left out.
+    """
     results_dir = Path(results_dir)
     results_dir.mkdir(parents=True, exist_ok=True)
+    table, left_out = current_rows(experiment, table, results_dir)
     summary = aggregate(table)
     failed = table[table["status"] != "ok"] if len(table) else table
     lines = [f"# {experiment.name}", ""]
@@ -104,16 +250,22 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         "`gt_mass` is the posterior probability of the ground-truth topology, `gt_rank_median` its median rank "
         "(1 = most probable), `map_correct` the fraction of seeds whose MAP is the truth, `lc_*` loop-closure "
         "scores of the co-assignment matrix, `rhat_over_1.1` the fraction of seeds whose chains disagree "
-        "(split R-hat of log P > 1.1: the masses of those runs are not converged).",
+        "(split R-hat of log P > 1.1: the masses of those runs are not converged)"
+        + (f", `{MEASURED_ALIASING}` the measured aliasing of the datasets (AUC of signature distance separating "
+           "same-place from different-place pairs: 1 = appearance tells places apart, 0.5 = it cannot)"
+           if MEASURED_ALIASING in _condition_columns(summary) else "") + ".",
         "",
     ]
+    lines += _left_out_note(left_out)
     if experiment.paper and len(summary):
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
     if len(summary):
-        columns = CONDITION + ["variant", "seeds", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median",
-                               "map_correct", "ari", "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1",
-                   "wall_s"]
+        columns = _condition_columns(summary) + [
+            "variant", "seeds", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari",
+            "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
+        lines += _calibration_section(table, summary)
+    lines += _provenance_section(table)
     if len(failed):
         lines += ["## Failed cells", "", markdown_table(failed[["cell_id", "error"]]), ""]
     if figures and len(summary):
@@ -126,13 +278,71 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
     return path
 
 
+def _left_out_note(left_out: dict) -> list[str]:
+    notes = []
+    if left_out["stale"]:
+        notes.append(f"{left_out['stale']} stale rows of the table were left out: their cells are not in the current "
+                     "config (a world, level, seed or variant since removed).")
+    if left_out["edited"]:
+        notes.append(f"{left_out['edited']} rows of the table were left out: they were computed under an edited "
+                     "config (their `definition` differs); rerun the sweep to recompute them.")
+    if left_out["missing"]:
+        notes.append(f"{left_out['missing']} cells of the config have no row yet.")
+    return [" ".join(notes), ""] if notes else []
+
+
+def _calibration_section(table: pd.DataFrame, summary: pd.DataFrame) -> list[str]:
+    by_variant = calibration_by_variant(table)
+    floor = f"{scoring.LOG_SCORE_FLOOR:.0e}".replace("e-0", "e-")
+    lines = [
+        "## Calibration",
+        "",
+        "Pooled per variant over every finished cell (all conditions and seeds). `n_pairs` detection pairs i < j "
+        "with co-assignment probability p (\"i and j are the same place\") and outcome y (1 if the truth puts them at "
+        f"one place); `ece` = sum_b (n_b / n) |mean p_b - mean y_b| over {scoring.RELIABILITY_BINS} equal-width bins "
+        "of p (0 = calibrated); `brier` = mean (p - y)^2 over the pairs; `log_score` = mean over cells of "
+        f"log max(gt_mass, {floor}) (0 = all mass on the truth; {math.log(scoring.LOG_SCORE_FLOOR):.1f} "
+        "= truth never visited); `confidently_wrong` = share of cells whose most probable topology has probability "
+        f">= {scoring.CONFIDENT:g} and is not the truth. The threshold baselines are point masses: every p is 0 or 1. "
+        "The reliability diagram under Figures draws mean p against the observed frequency of y per bin.",
+        "",
+        markdown_table(by_variant[["variant", "method", "cells", "gt_mass", "map_correct", "ari", "lc_ap", "n_pairs",
+                                   "ece", "brier", "log_score", "confidently_wrong"]]),
+        "",
+    ]
+    conditions = summary[CONDITION].drop_duplicates()
+    if len(conditions) > 1:
+        columns = _condition_columns(summary) + ["variant", "seeds", "n_pairs", "ece", "brier", "log_score",
+                                                 "confidently_wrong"]
+        lines += ["### Calibration per condition", "", markdown_table(summary[columns]), ""]
+    return lines
+
+
+def _provenance_section(table: pd.DataFrame) -> list[str]:
+    """Per variant, the distinct values of every ``source_*`` column; nothing when the table has none."""
+    sources = [column for column in table.columns if column.startswith(SOURCE_PREFIX)] if len(table) else []
+    ok = table[table["status"] == "ok"] if sources else table
+    lines = []
+    for variant, group in (ok.groupby("variant", sort=False) if sources and len(ok) else []):
+        entries = []
+        for column in sources:
+            values = [str(value) for value in dict.fromkeys(group[column].dropna()) if str(value).strip()]
+            if values:
+                entries.append(f"  - `{column[len(SOURCE_PREFIX):]}`: " + "; ".join(values))
+        if entries:
+            lines += [f"- **{variant}**", *entries]
+    if not lines:
+        return []
+    return ["## Where the parameters came from", "", *lines, ""]
+
+
 def _paper_comparison(experiment: Experiment, summary: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for variant, reported in experiment.paper.items():
         ours = summary[summary["variant"] == variant]
         for _, row in ours.iterrows():
             rows.append({
-                **{column: row[column] for column in CONDITION},
+                **{column: row[column] for column in _condition_columns(summary)},
                 "variant": variant,
                 "paper gt mass": reported.get("gt_mass", math.nan),
                 "ours gt mass (mean)": row["gt_mass"],
@@ -175,5 +385,17 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
             caption = f"Sampler traces, {row['variant']} ({where})"
             figures.append((caption, plots.sampler_traces(traces, results_dir / f"traces_{slug}.png", title=caption)))
     if ok["aliasing"].nunique() > 1 or ok["noise"].nunique() > 1:
-        figures.append(("Ground-truth mass over aliasing x noise", plots.mass_heatmap(ok, results_dir / "gt_mass_heatmap.png")))
+        caption = "Ground-truth mass over aliasing x noise" + (
+            " (aliasing labelled with the measured AUC of signature distance)" if _has_measured_aliasing(ok) else "")
+        figures.append((caption, plots.mass_heatmap(ok, results_dir / "gt_mass_heatmap.png")))
+    reliability = {variant: scoring.pooled_reliability(group["reliability"])
+                   for variant, group in ok.groupby("variant", sort=False)
+                   if "reliability" in group and group["reliability"].apply(lambda value: isinstance(value, str)).any()}
+    if reliability:
+        caption = "Reliability of the pairwise co-assignment probabilities, pooled per variant over all cells"
+        figures.append((caption, plots.reliability_diagram(reliability, results_dir / "reliability.png")))
     return figures
+
+
+def _has_measured_aliasing(ok: pd.DataFrame) -> bool:
+    return MEASURED_ALIASING in ok and pd.to_numeric(ok[MEASURED_ALIASING], errors="coerce").notna().any()

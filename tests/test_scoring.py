@@ -1,10 +1,12 @@
 """Scoring metrics on hand-made partitions with answers worked out by hand (ptm_bench.scoring)."""
 
+import json
 import math
 
 import numpy as np
 import pytest
 
+from ptm.partitions import canonical
 from ptm_bench import scoring
 
 
@@ -119,6 +121,117 @@ def test_score_rejects_a_distribution_that_does_not_sum_to_one():
 def test_score_rejects_partitions_of_the_wrong_size():
     with pytest.raises(ValueError, match="partition of 3 detections, the ground truth has 2"):
         scoring.score({(0, 1, 0): 1.0}, [0, 1])
+
+
+# -- calibration -----------------------------------------------------------------------------
+
+
+def test_expected_calibration_error_of_a_reliability_table_by_hand():
+    # Bins of width 0.1: [0, .1) holds 0.05 (y 0); [.1, .2) holds 0.15 (y 1) and 0.12 (y 0);
+    # [.8, .9) holds 0.85 (y 1); [.9, 1] holds 0.95 (y 1).
+    table = scoring.reliability_table([0.05, 0.15, 0.12, 0.85, 0.95], [0, 1, 0, 1, 1])
+    assert table.shape == (10, 3)
+    np.testing.assert_allclose(table[[0, 1, 8, 9]], [[1, 0.05, 0], [2, 0.27, 1], [1, 0.85, 1], [1, 0.95, 1]])
+    assert table[2:8].sum() == 0.0
+    # ECE = 1/5 |0.05 - 0| + 2/5 |0.135 - 0.5| + 1/5 |0.85 - 1| + 1/5 |0.95 - 1| = 0.01 + 0.146 + 0.03 + 0.01.
+    assert scoring.expected_calibration_error(table) == pytest.approx(0.196)
+    # A perfectly calibrated table has ECE 0; the same table as JSON gives the same value.
+    assert scoring.expected_calibration_error([[4, 1.0, 1.0], [2, 1.6, 1.6]]) == 0.0
+    assert scoring.expected_calibration_error(json.dumps(table.tolist())) == pytest.approx(0.196)
+
+
+def test_reliability_table_puts_certainty_in_the_last_bin_and_refuses_non_probabilities():
+    table = scoring.reliability_table([0.0, 1.0, 1.0 + 1e-12], [0, 1, 1])  # round-off above 1 is clipped
+    np.testing.assert_allclose(table[0], [1, 0.0, 0])
+    np.testing.assert_allclose(table[-1], [2, 2.0, 2])
+    with pytest.raises(ValueError, match="probabilities must lie in \\[0, 1\\]"):
+        scoring.reliability_table([0.5, 1.2], [0, 1])
+    with pytest.raises(ValueError, match="outcomes must be 0 or 1"):
+        scoring.reliability_table([0.5], [0.5])
+    with pytest.raises(ValueError, match="2 probabilities but 1 outcomes"):
+        scoring.reliability_table([0.5, 0.5], [1])
+
+
+def test_calibration_columns_of_a_two_topology_posterior_by_hand():
+    # truth (0, 0, 1); P(0,0,1) = 0.65, P(0,1,2) = 0.35. Pairs: (0,1) p 0.65 y 1; (0,2), (1,2) p 0 y 0.
+    row = scoring.score({(0, 0, 1): 0.65, (0, 1, 2): 0.35}, truth=[5, 5, 2])
+    assert row["n_pairs"] == 3
+    assert row["brier"] == pytest.approx(0.35 ** 2 / 3)
+    assert row["ece"] == pytest.approx(0.35 / 3)  # bin [0, .1): 2 pairs, exact; bin [.6, .7): |0.65 - 1|
+    table = np.array(json.loads(row["reliability"]))
+    np.testing.assert_allclose(table[[0, 6]], [[2, 0.0, 0], [1, 0.65, 1]])
+    assert row["log_score"] == pytest.approx(math.log(0.65))
+    assert row["map_mass"] == pytest.approx(0.65) and row["confidently_wrong"] is False
+
+
+def test_log_score_is_floored_so_an_unvisited_truth_is_finite():
+    unvisited = scoring.score(scoring.point_mass([0, 1, 2]), [0, 0, 1])
+    assert unvisited["log_score"] == pytest.approx(math.log(1e-6)) == pytest.approx(-13.815510557964274)
+    tiny = scoring.score({(0, 0, 1): 1e-8, (0, 1, 2): 1.0 - 1e-8}, [0, 0, 1])
+    assert tiny["log_score"] == pytest.approx(math.log(1e-6))
+    assert scoring.score(scoring.point_mass([0, 0, 1]), [0, 0, 1])["log_score"] == 0.0
+
+
+def test_confidently_wrong_needs_both_a_confident_map_and_a_wrong_one():
+    truth = [0, 0, 1]
+    assert scoring.score({(0, 1, 2): 0.92, (0, 0, 1): 0.08}, truth)["confidently_wrong"] is True
+    assert scoring.score({(0, 1, 2): 0.9, (0, 0, 1): 0.1}, truth)["confidently_wrong"] is True  # >= 0.9
+    assert scoring.score({(0, 1, 2): 0.88, (0, 0, 1): 0.12}, truth)["confidently_wrong"] is False  # not confident
+    assert scoring.score({(0, 0, 1): 0.95, (0, 1, 2): 0.05}, truth)["confidently_wrong"] is False  # right
+    wrong_baseline = scoring.score(scoring.point_mass([0, 1, 2]), truth)
+    assert wrong_baseline["confidently_wrong"] is True
+    # A point mass predicts 0 or 1 for every pair: the wrong pair (0, 1) costs (0 - 1)^2 of 3 pairs.
+    assert wrong_baseline["brier"] == pytest.approx(1.0 / 3.0)
+    assert wrong_baseline["ece"] == pytest.approx(1.0 / 3.0)
+
+
+def _random_distribution(rng, n):
+    partitions = {canonical(rng.integers(0, n, n)) for _ in range(int(rng.integers(1, 6)))}
+    weights = rng.dirichlet(np.ones(len(partitions)))
+    return dict(zip(partitions, weights))
+
+
+def _concatenated_ece(probabilities, outcomes, bins=10):
+    """ECE straight from its definition, bin by bin over the concatenated pairs (last bin closed)."""
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    ece = 0.0
+    for index in range(bins):
+        upper = probabilities <= edges[index + 1] if index == bins - 1 else probabilities < edges[index + 1]
+        members = (probabilities >= edges[index]) & upper
+        if members.any():
+            ece += members.sum() / len(probabilities) * abs(probabilities[members].mean() - outcomes[members].mean())
+    return ece
+
+
+def test_pooled_ece_and_brier_from_per_cell_columns_equal_those_of_the_concatenated_pairs():
+    rng = np.random.default_rng(91)
+    rows, probabilities, outcomes = [], [], []
+    for _ in range(12):
+        n = int(rng.integers(2, 8))  # cells of different sizes, so pooling must weight by pairs
+        truth = canonical(rng.integers(0, 3, n))
+        distribution = _random_distribution(rng, n)
+        rows.append(scoring.score(distribution, truth))
+        upper = np.triu_indices(n, k=1)
+        probabilities.append(scoring.coassignment_matrix(distribution)[upper])
+        outcomes.append((np.asarray(truth)[:, None] == np.asarray(truth)[None, :])[upper])
+    probabilities, outcomes = np.concatenate(probabilities), np.concatenate(outcomes).astype(float)
+    pooled = scoring.expected_calibration_error(scoring.pooled_reliability(row["reliability"] for row in rows))
+    assert pooled == pytest.approx(_concatenated_ece(probabilities, outcomes), abs=1e-12)
+    # The mean of the per-cell ECEs is not the pooled ECE: pooling has to go through the tables.
+    assert abs(np.mean([row["ece"] for row in rows]) - pooled) > 0.01
+    n_pairs = np.array([row["n_pairs"] for row in rows])
+    assert n_pairs.sum() == len(probabilities)
+    brier = np.sum([row["brier"] for row in rows] * n_pairs) / n_pairs.sum()
+    assert brier == pytest.approx(np.mean((probabilities - outcomes) ** 2), abs=1e-12)
+
+
+def test_pooled_reliability_skips_missing_tables_and_refuses_mismatched_ones():
+    table = scoring.reliability_table([0.3], [1])
+    np.testing.assert_allclose(scoring.pooled_reliability([json.dumps(table.tolist()), float("nan"), table]), 2 * table)
+    with pytest.raises(ValueError, match="cannot be pooled"):
+        scoring.pooled_reliability([table, scoring.reliability_table([0.3], [1], bins=5)])
+    with pytest.raises(ValueError, match="no reliability table"):
+        scoring.pooled_reliability([float("nan")])
 
 
 # -- baselines -------------------------------------------------------------------------------

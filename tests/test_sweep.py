@@ -276,3 +276,7 @@ def test_cells_run_end_to_end_and_the_summary_is_written(tmp_path):
     assert (results / "top5_odometry_appearance.png").is_file()
     assert (results / "gt_mass_heatmap.png").is_file()
     assert (results / "trajectory.png").is_file()
+    # Every cell, baselines included, carries its calibration columns, and the summary pools them.
+    assert table["reliability"].notna().all() and table["log_score"].notna().all()
+    assert (table["n_pairs"] == table["n_measurements"] * (table["n_measurements"] - 1) // 2).all()
+    assert "## Calibration" in summary and (results / "reliability.png").is_file()
