@@ -1,33 +1,67 @@
-"""Calibration on held-out runs: appearance hyperparameters and the penalty radius (SPEC §3.2, §3.3, §6).
+"""Parameters of a cell's posterior, from the config, a sensor specification, or held-out runs (SPEC §3, §6).
 
-The paper hand-tunes the appearance hyperparameters and the penalty radius
-and names that a weakness (Section VIII). Here
+Nothing inside inference may come from the scored run's ground truth: a user
+with a real robot knows neither the number of places nor their spacing. Every
+parameter is therefore one of
 
-* the appearance hyperparameters (mu, kappa, alpha, beta per component) are
-  fitted by empirical Bayes — maximising the evidence of the ground-truth
-  partitions (``ptm.AppearanceModel.fit``) — on *calibration* datasets:
-  the same world, aliasing and noise, but seeds the experiment never scores
-  (the config loader refuses overlapping seed lists);
-* the penalty radius D is ``penalty_radius_factor`` times the world's minimum
-  spacing between distinct places (dataset meta ``min_place_spacing``), since
-  the density prior says exactly that distinct places are not closer than
-  that, unless the config fixes D; likewise the tie sigma_T of detections of
-  one place is a multiple of the detector's radius (dataset meta
-  ``detection_radius``) unless the config fixes it.
+* **configured** (the experiment's TOML sets it);
+* a **sensor specification** a user knows: the detector's radius r (dataset
+  meta ``detection_radius``) gives the tie sigma_T = ``sigma_topology_factor`` x r;
+* **calibrated** on the *held-out* runs (:func:`calibration_datasets`):
+  labelled runs of the cell's world, aliasing and noise at seeds the
+  experiment never scores (the config loader refuses overlapping seed lists).
 
-    >>> datasets = calibration_datasets(cell)
-    >>> model = fitted_appearance(datasets, evidence="corrected")
-    >>> radius = penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, dataset.meta)
-    >>> sigma = topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, dataset.meta)
+The calibrated ones:
+
+* the Poisson rate of the prior (paper eq. 8-9) is (distinct true places /
+  detections, pooled over the held-out runs) x N, the number of detections of
+  the scored run — which inference knows. A per-detection rate, not a count:
+  generated grids draw a different floor per seed, so a held-out run has other
+  places than the scored run, and a count from other floors does not fit this
+  one (a floor with more places has a longer route and more detections); the
+  share of detections that are first visits is set by the route rules that
+  every floor of a generator shares, so it transfers. On a preset floor the
+  rate is the number of places the route visits, as the floor is the same;
+* the penalty radius D (paper eq. 14) is ``penalty_radius_factor`` x the
+  smallest distance between the true positions of two detections of different
+  places, the minimum over every held-out run. D says "distinct places are not
+  closer than this"; the penalty fires on any topology that puts two places
+  closer, so D must not exceed a spacing that true topologies have, and the
+  minimum is the largest radius no held-out run contradicts (a low quantile
+  would by construction put true pairs of some runs inside it). It cannot
+  collapse on one unlucky pass: a detection lies within r of its place and the
+  floors keep places more than 2r apart. False detections (negative labels)
+  are left out: they are noise, not landmarks, and two of them may fire at one
+  spot;
+* the appearance hyperparameters (mu, kappa, alpha, beta per Fourier
+  component, paper eq. 15-19) by empirical Bayes — maximising the evidence of
+  the held-out runs' true partitions (``ptm.AppearanceModel.fit``).
+
+Each function returns ``(value, source)``: the number and a one-line
+provenance that :mod:`ptm_bench.cell` records as the ``source_<parameter>``
+column.
+
+    >>> held_out = calibration_datasets(cell)
+    >>> rate, source = prior_rate({"prior_rate": None}, n=dataset.n, held_out=held_out)
+    >>> radius, source = penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, held_out)
+    >>> sigma, source = topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, dataset.meta)
 """
 
 from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
 
 import ptm
 
 from .datacache import dataset_for
 
-__all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "topology_sigma"]
+__all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
+           "prior_rate", "topology_sigma"]
+
+CONFIG = "config"
 
 
 def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
@@ -44,28 +78,97 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
     ]
 
 
-def fitted_appearance(datasets, evidence: str) -> ptm.AppearanceModel:
-    """Empirical-Bayes appearance hyperparameters from labelled calibration datasets."""
-    return ptm.AppearanceModel.fit(list(datasets), evidence=evidence)
+def fitted_appearance(held_out: Sequence[ptm.Dataset], evidence: str) -> tuple[ptm.AppearanceModel, str]:
+    """Empirical-Bayes appearance hyperparameters from the labelled held-out runs, and their source."""
+    held_out = _labelled(held_out, "appearance hyperparameters")
+    model = ptm.AppearanceModel.fit(held_out, evidence=evidence)
+    return model, f"empirical Bayes on {_runs(held_out)}"
 
 
-def penalty_radius(odometry_settings: dict, meta: dict) -> float:
-    """The configured penalty radius D, or ``penalty_radius_factor`` x the world's minimum place spacing."""
-    return _scaled_from_world(odometry_settings, "penalty_radius", meta, "min_place_spacing")
+def places_per_detection(held_out: Sequence[ptm.Dataset]) -> float:
+    """Distinct true places / detections, pooled over labelled runs (a false detection is its own place)."""
+    held_out = _labelled(held_out, "the prior rate")
+    places = sum(len(np.unique(dataset.labels)) for dataset in held_out)
+    return places / sum(dataset.n for dataset in held_out)
 
 
-def topology_sigma(odometry_settings: dict, meta: dict) -> float:
-    """The configured tie sigma_T, or ``sigma_topology_factor`` x the detector's radius.
+def place_separation(held_out: Sequence[ptm.Dataset]) -> float:
+    """The smallest distance [m] between true positions of detections of different places, over all runs.
+
+    False detections (negative labels) are left out. Raises ``ValueError`` if
+    no run has detections of two different places.
+    """
+    held_out = _labelled(held_out, "the penalty radius")
+    closest = math.inf
+    for index, dataset in enumerate(held_out):
+        if dataset.true_poses is None:
+            raise ValueError(f"calibration of the penalty radius: held-out run {index} has no true_poses")
+        real = dataset.labels >= 0
+        labels, xy = dataset.labels[real], dataset.true_poses[real, :2]
+        different = labels[:, None] != labels[None, :]
+        if different.any():
+            gaps = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2)
+            closest = min(closest, float(gaps[different].min()))
+    if not math.isfinite(closest):
+        raise ValueError("calibration of the penalty radius: no held-out run detects two different places; "
+                         "set odometry.penalty_radius in the config")
+    return closest
+
+
+def prior_rate(inference_settings: dict, n: int, held_out) -> tuple[float, str]:
+    """The configured ``inference.prior_rate``, or places per detection on the held-out runs x ``n``.
+
+    ``held_out`` is the list of held-out runs, or a function returning it (called only when needed).
+    """
+    if inference_settings["prior_rate"] is not None:
+        return float(inference_settings["prior_rate"]), CONFIG
+    held_out = _materialised(held_out)
+    share = places_per_detection(held_out)
+    return share * n, f"calibrated: {share:.3g} places/detection on {_runs(held_out)} x N={n}"
+
+
+def penalty_radius(odometry_settings: dict, held_out) -> tuple[float, str]:
+    """The configured penalty radius D, or ``penalty_radius_factor`` x :func:`place_separation` of the held-out runs.
+
+    ``held_out`` is the list of held-out runs, or a function returning it (called only when needed).
+    """
+    if odometry_settings["penalty_radius"] is not None:
+        return float(odometry_settings["penalty_radius"]), CONFIG
+    factor = float(odometry_settings["penalty_radius_factor"])
+    held_out = _materialised(held_out)
+    separation = place_separation(held_out)
+    return factor * separation, (f"calibrated: {factor:g} x {separation:.3g} m, the closest detections of "
+                                 f"different places on {_runs(held_out)}")
+
+
+def topology_sigma(odometry_settings: dict, meta: dict) -> tuple[float, str]:
+    """The configured tie sigma_T, or ``sigma_topology_factor`` x the detector's radius (a sensor specification).
 
     Two detections of one place lie anywhere within the detection radius r of
     it, so up to 2r apart: sigma_T of the order of r keeps such pairs plausible.
     """
-    return _scaled_from_world(odometry_settings, "sigma_topology", meta, "detection_radius")
+    if odometry_settings["sigma_topology"] is not None:
+        return float(odometry_settings["sigma_topology"]), CONFIG
+    if "detection_radius" not in meta:
+        raise ValueError("odometry.sigma_topology is not set and the dataset meta has no 'detection_radius' "
+                         "(the detector's specification) to derive it from")
+    factor, radius = float(odometry_settings["sigma_topology_factor"]), float(meta["detection_radius"])
+    return factor * radius, f"sensor spec: {factor:g} x detection radius {radius:g} m"
 
 
-def _scaled_from_world(settings: dict, key: str, meta: dict, meta_key: str) -> float:
-    if settings[key] is not None:
-        return float(settings[key])
-    if meta_key not in meta:
-        raise ValueError(f"odometry.{key} is not set and the dataset meta has no '{meta_key}' to derive it from")
-    return float(settings[f"{key}_factor"]) * float(meta[meta_key])
+def _materialised(held_out) -> list[ptm.Dataset]:
+    return list(held_out() if callable(held_out) else held_out)
+
+
+def _labelled(held_out, what: str) -> list[ptm.Dataset]:
+    held_out = list(held_out)
+    if not held_out:
+        raise ValueError(f"calibration of {what} needs at least one held-out run (sweep.calibration_seeds)")
+    for index, dataset in enumerate(held_out):
+        if dataset.labels is None:
+            raise ValueError(f"calibration of {what}: held-out run {index} has no labels")
+    return held_out
+
+
+def _runs(held_out: list) -> str:
+    return f"{len(held_out)} held-out run{'s' if len(held_out) != 1 else ''}"

@@ -2,12 +2,15 @@
 
 :func:`run_cell` takes a cell from :func:`ptm_bench.experiment.expand_cells`
 and returns its table row: the scores of :func:`ptm_bench.scoring.score`,
-the sampler diagnostics, the calibrated parameters, the top five topologies
-and thinned sampler traces (as JSON, so that summaries and figures need only
-the table), and the wall time. Everything random is seeded from the cell's
-seed: the dataset by the simulator, and the inference streams (sampler,
-importance-sampling noise) from ``SeedSequence(seed, spawn_key=(INFERENCE_KEY,))``,
-a branch the simulator's own spawned streams never use. The same streams
+the sampler diagnostics, the parameters the posterior used with the source
+of each (``source_<parameter>``: the config, a sensor specification, or a
+calibration on held-out runs — never the scored run's ground truth), the
+run's measured aliasing, the top five topologies and thinned sampler traces
+(as JSON, so that summaries and figures need only the table), and the wall
+time. Everything random is seeded from the cell's seed: the dataset by the
+simulator, and the inference streams (sampler, importance-sampling noise)
+from ``SeedSequence(seed, spawn_key=(INFERENCE_KEY,))``, a branch the
+simulator's own spawned streams never use. The same streams
 serve every variant of a seed (common random numbers across variants).
 
 The posterior is paper eq. (2): the Poisson prior (eq. 8-9), the odometry
@@ -20,7 +23,9 @@ likelihood (eq. 11-14) and the appearance likelihood (eq. 15-19, corrected).
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import time
 
 import numpy as np
@@ -29,10 +34,15 @@ import ptm
 
 from . import scoring
 from .baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
-from .calibration import calibration_datasets, fitted_appearance, penalty_radius, topology_sigma
+from .calibration import calibration_datasets, fitted_appearance, penalty_radius, prior_rate, topology_sigma
 from .datacache import dataset_for
 
-__all__ = ["INFERENCE_KEY", "run_cell", "build_posterior"]
+__all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior"]
+
+#: Version of the rules by which a cell computes its row (this file, ptm_bench.calibration, ptm_bench.scoring).
+#: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
+#: change, and a rerun of a sweep recomputes its cells instead of reusing their rows.
+CELL_VERSION = "ptm_bench.cell/2"
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000
@@ -54,6 +64,8 @@ def run_cell(cell: dict) -> dict:
     else:
         row = _run_inference(cell, dataset)
     row["true_labels"] = json.dumps(list(ptm.canonical(dataset.labels)))
+    # The measured aliasing of the run (SPEC §6), beside the aliasing knob; NaN where the generator did not measure it.
+    row["aliasing_auc"] = float(dataset.meta.get("aliasing_auc", math.nan))
     row["inference_wall_s"] = time.perf_counter() - inference_started
     row["wall_s"] = time.perf_counter() - started
     return row
@@ -61,22 +73,32 @@ def run_cell(cell: dict) -> dict:
 
 def _run_baseline(cell: dict, dataset: ptm.Dataset) -> dict:
     features = BASELINE_FEATURES[cell["variant"]]
-    threshold = fit_threshold(calibration_datasets(cell), features)
+    held_out = calibration_datasets(cell)
+    threshold = fit_threshold(held_out, features)
     labels = greedy_threshold_labels(features(dataset), threshold)
     row = scoring.score(scoring.point_mass(labels), dataset.labels)
     row["threshold"] = threshold
+    row["source_threshold"] = f"calibrated: best mean ARI on {len(held_out)} held-out run{'s' * (len(held_out) != 1)}"
     row["top5"] = json.dumps([[list(labels), 1.0]])
     return row
 
 
 def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, dict]:
-    """The posterior of the cell's variant, and the calibrated parameters it used (for the table)."""
+    """The posterior of the cell's variant, and the parameters it used with their sources (for the table).
+
+    Only what a user of a real robot has is read from ``dataset``: its odometry,
+    signatures, number of detections and the detector's radius (a sensor
+    specification). Never its labels, true poses, or the world's places: the
+    rest is configured or calibrated on the held-out runs (:mod:`ptm_bench.calibration`).
+    For each parameter ``p`` the returned dict holds its value ``p`` and its provenance ``source_p``.
+    """
     settings, models, used = cell["settings"], [], {}
     _, importance_seed = _inference_seeds(cell["seed"])
+    held_out = functools.cache(lambda: calibration_datasets(cell))  # generated or loaded only if some parameter needs them
     if "odometry" in settings["models"]:
         odometry = settings["odometry"]
-        used["penalty_radius"] = penalty_radius(odometry, dataset.meta)
-        used["sigma_topology"] = topology_sigma(odometry, dataset.meta)
+        used["penalty_radius"], used["source_penalty_radius"] = penalty_radius(odometry, held_out)
+        used["sigma_topology"], used["source_sigma_topology"] = topology_sigma(odometry, dataset.meta)
         used["max_penalty"] = float(odometry["max_penalty"])
         models.append(ptm.OdometryModel(
             sigma_xy=odometry["sigma_xy"], sigma_theta=odometry["sigma_theta"],
@@ -84,11 +106,15 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
             max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
         ))
     if "appearance" in settings["models"]:
-        appearance = fitted_appearance(calibration_datasets(cell), settings["appearance"]["evidence"])
+        appearance = settings["appearance"]
+        if appearance["hyperparameters"] != "fit":
+            raise ValueError(f"appearance.hyperparameters = {appearance['hyperparameters']!r} is not implemented; "
+                             "use 'fit' (empirical Bayes on the calibration seeds)")
+        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["evidence"])
         used["appearance_hyperparameters"] = json.dumps(
-            {name: np.round(np.atleast_1d(getattr(appearance, name)), 6).tolist() for name in ("mu", "kappa", "alpha", "beta")})
-        models.append(appearance)
-    used["prior_rate"] = _prior_rate(settings["inference"]["prior_rate"], dataset.meta)
+            {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in ("mu", "kappa", "alpha", "beta")})
+        models.append(model)
+    used["prior_rate"], used["source_prior_rate"] = prior_rate(settings["inference"], dataset.n, held_out)
     return ptm.Posterior(dataset, ptm.PoissonPrior(used["prior_rate"]), models), used
 
 
@@ -121,15 +147,6 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
 def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
     sampler, importance = np.random.SeedSequence(seed, spawn_key=(INFERENCE_KEY,)).spawn(2)
     return sampler, importance
-
-
-def _prior_rate(configured, meta: dict) -> float:
-    if configured is not None:
-        return float(configured)
-    places = meta.get("places")
-    if places is None:
-        raise ValueError("inference.prior_rate is not set and the dataset meta has no 'places' to derive it from")
-    return float(len(places) if isinstance(places, (list, dict)) else places)
 
 
 def _flat_diagnostics(diagnostics: dict, prefix: str = "") -> dict:

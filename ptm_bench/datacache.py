@@ -1,17 +1,28 @@
 """Datasets for sweep cells: resolve the world, generate with the simulator, cache on disk.
 
 A dataset is identified by (world, aliasing, noise, seed, generator options,
-number of Fourier components); the simulator is deterministic in these
-(SPEC §5), so a cached file is exactly what generation would give. Several
-model variants and the calibration of every cell of one condition share one
-dataset, so each is generated once per machine. Files are written atomically
-(two processes racing write the same bytes), without the panoramas. With
-``components`` set, the signatures keep K Fourier components (SPEC §4)
-instead of the generator's default.
+number of Fourier components) and by what the simulator makes of them: the
+world's *content* and the simulator's version. :func:`world_identity` gives
+both: for a preset name or a floor ``.toml`` path, the SHA-256 of the file's
+bytes (resolved as ``ptm_bench.floorplan.load_world`` resolves it); for a
+procedural world, the generator table itself; and for either,
+``ptm_bench.generate.GENERATOR_VERSION`` (bumped whenever a change to the
+simulator changes the datasets it writes). Editing a world file or bumping
+the version therefore gives a new cache file, and — since
+``ptm_bench.experiment`` puts the same identity into every cell's definition
+digest — recomputes the sweep cells that used the old one.
+
+The simulator is deterministic in these (SPEC §5), so a cached file is
+exactly what generation would give. Several model variants and the
+calibration of every cell of one condition share one dataset, so each is
+generated once per machine. Files are written atomically (two processes
+racing write the same bytes), without the panoramas. With ``components``
+set, the signatures keep K Fourier components (SPEC §4) instead of the
+generator's default.
 
     >>> dataset = dataset_for("nested_loops", aliasing=0.0, noise=1.0, seed=3, cache_dir="results/exp3/datasets")
-    >>> dataset.n, dataset.meta["min_place_spacing"]
-    >>> resolve_world({"generator": "corridor_grid", "name": "g", "rows": 2, "cols": 3, "loops": 1, "place_density": 0.8}, seed=0)
+    >>> dataset_path("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")  # where it is cached
+    >>> world_identity("nested_loops")  # {"world": "nested_loops", "world_sha256": "...", "simulator": "..."}
 """
 
 from __future__ import annotations
@@ -22,7 +33,7 @@ from pathlib import Path
 
 import ptm
 
-__all__ = ["dataset_for", "resolve_world"]
+__all__ = ["dataset_for", "dataset_path", "resolve_world", "simulator_version", "world_identity"]
 
 
 def resolve_world(world_spec, seed: int):
@@ -36,15 +47,50 @@ def resolve_world(world_spec, seed: int):
     return floorplan.corridor_grid(**params)
 
 
+def simulator_version() -> str:
+    """``ptm_bench.generate.GENERATOR_VERSION``: the version of the simulator that writes the datasets."""
+    # Imported here, not at the top: generate imports MuJoCo, which parsing configs does not need.
+    from . import generate
+
+    return generate.GENERATOR_VERSION
+
+
+def world_identity(world_spec) -> dict:
+    """What decides a world's datasets besides the condition: its spec, its content, the simulator's version.
+
+    A preset name or floor file is identified by the SHA-256 of the file's
+    bytes (a missing or malformed file raises ``ValueError``); a procedural
+    world by its generator table, already in the spec — the generator's code
+    is part of the simulator and versioned with it.
+    """
+    identity = {"world": world_spec, "simulator": simulator_version()}
+    if isinstance(world_spec, str):
+        from .floorplan import load_world
+
+        source = Path(load_world(world_spec).source)  # the file floorplan's own lookup reads
+        identity["world_sha256"] = hashlib.sha256(source.read_bytes()).hexdigest()
+    elif not isinstance(world_spec, dict):
+        raise ValueError(f"world: a world is a preset name, a floor .toml path or a generator table, got {world_spec!r}")
+    return identity
+
+
+def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator_options=None, cache_dir=None,
+                 components: int | None = None) -> Path | None:
+    """The cache file of one condition and seed (None without ``cache_dir``); its name ends in a digest of the identity."""
+    if cache_dir is None:
+        return None
+    identity = {**world_identity(world_spec), "aliasing": aliasing, "noise": noise, "seed": seed,
+                "options": dict(generator_options or {}), "components": components}
+    digest = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:12]
+    name = world_spec if isinstance(world_spec, str) else world_spec["name"]
+    return Path(cache_dir) / f"{Path(name).stem}_a{aliasing:g}_n{noise:g}_s{seed}_{digest}.npz"
+
+
 def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_options=None,
                 cache_dir=None, components: int | None = None) -> ptm.Dataset:
     """The dataset of one condition and seed, from ``cache_dir`` if it was generated before."""
     generator_options = dict(generator_options or {})
-    identity = {"world": world_spec, "aliasing": aliasing, "noise": noise, "seed": seed,
-                "options": generator_options, "components": components}
-    digest = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:12]
-    name = world_spec if isinstance(world_spec, str) else world_spec["name"]
-    path = Path(cache_dir) / f"{Path(name).stem}_a{aliasing:g}_n{noise:g}_s{seed}_{digest}.npz" if cache_dir else None
+    path = dataset_path(world_spec, aliasing, noise, seed, generator_options, cache_dir, components)
     if path is not None and path.is_file():
         return ptm.Dataset.load(path)
 

@@ -5,10 +5,13 @@ smaller one, twelve detections), the posterior over topologies (paper eq. 2:
 prior eq. 8-9, odometry eq. 11-14, appearance eq. 15-19 corrected) is
 sampled with odometry alone and with odometry plus appearance, the two
 threshold baselines are run, every answer is scored against the ground truth
-(SPEC §6), and the scores, the top topologies and the figures are written to
-``results/demo/``. It is the experiment machinery of ``ptm-bench run`` on
-the embedded config :data:`DEMO_CONFIG`, and takes well under two minutes on
-two cores.
+(SPEC §6), and the scores, the parameters' sources, the top topologies and
+the figures are written to ``results/demo/``. Each cell is a sweep cell
+(:func:`ptm_bench.cell.run_cell`), so the demo follows the same rules: every
+parameter is configured, a sensor specification, or calibrated on the two
+held-out runs, never read from the scored run's ground truth. It is the
+experiment machinery of ``ptm-bench run`` on the embedded config
+:data:`DEMO_CONFIG`, and takes well under two minutes on two cores.
 
     $ ptm-bench demo
     $ ptm-bench demo --world office --seed 3 --aliasing 0.5
@@ -60,7 +63,7 @@ def run(args) -> int:
     experiment = parse_experiment(config, source="ptm-bench demo")
     cells = expand_cells(experiment, args.out)
     print(f"Simulating {args.world} (aliasing {args.aliasing:g}, noise {args.noise:g}, seed {args.seed}), "
-          f"calibrating appearance on seeds {experiment.sweep['calibration_seeds']}, "
+          f"calibrating on held-out seeds {experiment.sweep['calibration_seeds']}, "
           f"and running {len(cells)} inferences on {args.workers} processes...")
     started = time.perf_counter()
     # A fresh table each time: the demo always recomputes (a sweep would resume instead).
@@ -84,6 +87,13 @@ def run(args) -> int:
               f"{row['ari']:>6.2f}{f1:>8}{row['expected_places']:>10.2f}{row['wall_s']:>7.1f}s")
     full = finished[finished["variant"] == "odometry+appearance"]
     if not full.empty:
+        # Where each parameter came from: the config, a sensor specification, or the held-out runs -- never the truth.
+        print("\nparameters of odometry + appearance:")
+        for column in sorted(c for c in full.columns if c.startswith("source_") and isinstance(full.iloc[0][c], str)):
+            name = column.removeprefix("source_")
+            value = full.iloc[0].get(name)
+            shown = f"{value:.3g} " if isinstance(value, float) and value == value else ""
+            print(f"  {name:<16}{shown}({full.iloc[0][column]})")
         print("\nmost probable topologies with odometry + appearance:")
         for labels, probability in json.loads(full.iloc[0]["top5"]):
             marker = "  <- ground truth" if tuple(labels) == truth else ""

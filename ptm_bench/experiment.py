@@ -61,7 +61,7 @@ DEFAULTS = {
         "burn_in": 2000,
         "thin": 1,
         "chains": 4,  # independent chains of "mcmc", independent ladders of "tempered"
-        "prior_rate": None,  # None: the number of places of the world (generator meta "places")
+        "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
         "exact_max_n": 10,
         "moves": "default",  # "default" (split/merge + Gibbs) or "paper" (split/merge only)
@@ -70,15 +70,18 @@ DEFAULTS = {
     "odometry": {
         "sigma_xy": 0.1,
         "sigma_theta": 0.05,
-        "sigma_topology": None,  # None: sigma_topology_factor x the detector's radius (meta "detection_radius")
+        "sigma_topology": None,  # None: sigma_topology_factor x the detector's radius (a sensor specification)
         "sigma_topology_factor": 2.0,
-        "penalty_radius": None,  # None: penalty_radius_factor x the world's min_place_spacing
+        "penalty_radius": None,  # None: penalty_radius_factor x the closest detections of different places
+        # on the calibration runs
         "penalty_radius_factor": 0.75,
         "max_penalty": 100.0,
         "n_importance": 100,
     },
     "appearance": {
-        "hyperparameters": "fit",  # "fit": empirical Bayes on the calibration seeds; "paper": s2 mean 500, variance 50
+        # "fit": empirical Bayes on the calibration seeds; "paper" (s2 mean 500, variance 50) is not implemented
+        # yet, and a cell that asks for it fails saying so
+        "hyperparameters": "fit",
         "evidence": "corrected",
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
@@ -199,8 +202,21 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 
 
 def _definition(cell: dict) -> str:
-    """A digest of the config of a cell: everything in it but where its datasets are cached."""
-    decisive = {**cell, "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"}}
+    """A digest of everything that decides a cell's row.
+
+    Its config (everything in the cell but where its datasets are cached), the
+    world's content and the simulator's version
+    (:func:`ptm_bench.datacache.world_identity`: edit a world file or bump
+    ``GENERATOR_VERSION`` and the cell is recomputed on the next run), and
+    :data:`ptm_bench.cell.CELL_VERSION`, the version of the rules that turn a
+    dataset into a row.
+    """
+    # Imported here: both pull in the simulator or the inference package, which parsing configs does not need.
+    from .cell import CELL_VERSION
+    from .datacache import world_identity
+
+    decisive = {**cell, "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
+                "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": CELL_VERSION}
     return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
