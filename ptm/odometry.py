@@ -1,4 +1,4 @@
-"""The odometry likelihood log P(O | T): Laplace proposal plus importance sampling.
+"""The odometry likelihood log P(O | T): Laplace proposal (plus a penalty component) and importance sampling.
 
 Implements SPEC §3.3 (paper eq. 3 and 11-14). For a partition T,
 
@@ -17,9 +17,33 @@ then importance sampling from Q,
 (With a factor H = L L^T and P_s = P* + L^-T eps_s the last term is the
 SPEC's 1/2 |eps_s|^2; the structured factor of :mod:`ptm.pose_graph` draws
 P_s from d + r normals instead and evaluates the quadratic form directly.)
+
+Where the penalty is active at P* (a pair of different sets closer than the
+radius), Q alone gives heavy-tailed weights: the integrand's mass sits where
+Pen pushes the pair apart, in Q's tail. The proposal is then a defensive
+mixture (the variant of SPEC §3.3 built around argmin(E + Pen), kept
+alongside Q). Let t = B P be the positions of the detections in the penalised
+pairs (2m numbers), S = B H^-1 B^T their covariance under Q and t* = B P*.
+Component 1 is the Laplace fit of Q(P) exp(-Pen(P)) in t: the mode t† of
+1/2 (t - t*)^T S^-1 (t - t*) + Pen(t) (damped Newton in 2m dimensions) and
+the inverse Hessian S† there (of Pen's positive semi-definite part where the
+exact one is indefinite); the other poses follow Q's conditional given t.
+Half the samples come from each (stratified: the same eps columns, the first
+half from Q), and the balance-heuristic weights are
+
+    log w_s = -E(P_s) - Pen(P_s) - log( 1/2 Q(P_s) + 1/2 Q_1(P_s) ),
+    Q_1(P) / Q(P) = N(B P; t†, S†) / N(B P; t*, S),
+
+a ratio of 2m-dimensional normal densities, so the mixture costs 2m solves
+with H and small dense algebra. The estimate is the mean weight; its
+Monte-Carlo standard error is the delta-method se(log mean w) = se(mean w) /
+mean w with the stratified variance sum_c n_c var_c(w) / S^2. Without an
+active pair the estimator is exactly the single-Gaussian one above.
+
 The noise matrix eps (S x (d + N)) is drawn once per bound term from the model's
 seed (common random numbers), so the estimate is a deterministic function of
-the partition and the MCMC target is well defined; results are memoised per
+the partition (the mode t† is converged to rounding, so it is as history-free
+as P*) and the MCMC target is well defined; results are memoised per
 canonical partition in a bounded LRU cache.
 
     >>> model = OdometryModel(sigma_xy=0.1, sigma_theta=0.05, sigma_topology=0.3,
@@ -34,6 +58,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.spatial.distance
 
 from ._cache import BoundedCache
@@ -45,6 +70,8 @@ __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "landmark_pena
 
 #: Bytes of one importance-sampling temporary (see ``OdometryTerm._sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
+#: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
+DEFENSIVE_SHARE = 0.5
 
 
 def landmark_penalty(positions, pairs, penalty_radius: float, max_penalty: float) -> np.ndarray:
@@ -66,12 +93,13 @@ class OdometryEvaluation:
 
     log_likelihood: float  # the importance-sampling estimate
     laplace: float  # -E(P*) + (d/2) log 2 pi - 1/2 log det H (no penalty)
-    standard_error: float  # delta-method Monte-Carlo standard error of the estimate [nats]
+    standard_error: float  # delta-method Monte-Carlo standard error of the estimate [nats], stratified
     ess: float  # effective sample size of the importance weights
     iterations: int  # Newton / Gauss-Newton / Levenberg-Marquardt iterations
     factorisations: int  # Hessian factorisations spent by the fit
     converged: bool
     solution: np.ndarray  # P*, the (d,) state vector of poses 1..N-1
+    penalty_shift: float = 0.0  # |P-dagger - P*| in the metric of H (0: no penalty component in the proposal)
 
 
 class OdometryModel:
@@ -176,6 +204,9 @@ class OdometryTerm:
         self._factorisations_total = 0
         self._ess_total = 0.0
         self._ess_min = math.inf
+        self._standard_error_total = 0.0
+        self._standard_error_max = 0.0
+        self._penalty_mixtures = 0
         self._seconds = 0.0
 
     def log_likelihood(self, partition) -> float:
@@ -211,13 +242,21 @@ class OdometryTerm:
         return evaluation
 
     def diagnostics(self) -> dict:
-        """Cache use, importance-sampling quality and optimiser effort so far."""
+        """Cache use, importance-sampling quality and optimiser effort so far.
+
+        ``mc_standard_error_mean`` / ``_max`` summarise the estimator's own Monte-Carlo standard
+        error [nats] over the evaluations, ``penalty_proposal_rate`` the share of them that
+        needed the penalty component of the proposal.
+        """
         evaluations = self._evaluations
         return {
             **self._cache.stats(),
             "evaluations": evaluations,
             "ess_mean": self._ess_total / evaluations if evaluations else math.nan,
             "ess_min": self._ess_min if evaluations else math.nan,
+            "mc_standard_error_mean": self._standard_error_total / evaluations if evaluations else math.nan,
+            "mc_standard_error_max": self._standard_error_max if evaluations else math.nan,
+            "penalty_proposal_rate": self._penalty_mixtures / evaluations if evaluations else math.nan,
             "n_importance": self.model.n_importance,
             "lm_iterations_mean": self._iterations_total / evaluations if evaluations else math.nan,
             "lm_iterations_max": self._iterations_max,
@@ -239,14 +278,21 @@ class OdometryTerm:
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
+        centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
+        mixture = self._penalty_mixture(fit, labels, centre_distance)
         log_weights = log_proposal_norm + np.concatenate([
-            self._log_weight_terms(fit, labels, self._noise_columns[:, chunk]) for chunk in self._sample_chunks
+            self._log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self._sample_chunks
         ])
         largest = float(log_weights.max())
         weights = np.exp(log_weights - largest)
-        estimate = largest + math.log(float(weights.mean()))
+        # stratified (deterministic allocation) balance-heuristic estimator: the mean of all weights
+        mean = float(weights.mean())
+        estimate = largest + math.log(mean)
         ess = float(weights.sum() ** 2 / np.sum(weights**2))
-        standard_error = float(weights.std() / (weights.mean() * math.sqrt(len(weights))))
+        total = len(weights)
+        variance = sum((component.stop - component.start) * float(weights[component].var())
+                       for component in (mixture.components if mixture is not None else (slice(0, total),))) / total**2
+        standard_error = math.sqrt(variance) / mean  # delta method: se(log I) = se(I) / I
         return OdometryEvaluation(
             log_likelihood=estimate,
             laplace=log_proposal_norm - fit.energy,
@@ -256,15 +302,105 @@ class OdometryTerm:
             factorisations=fit.factorisations,
             converged=fit.converged,
             solution=fit.x,
+            penalty_shift=mixture.shift if mixture is not None else 0.0,
         )
 
-    def _log_weight_terms(self, fit: LaplaceFit, labels, noise_columns) -> np.ndarray:
-        """1/2 delta^T H delta - E(P* + delta) - Pen(P* + delta) for the samples drawn from ``noise_columns``."""
-        offsets, half_quadratic = fit.factor.sample(noise_columns)
+    def _log_weight_terms(self, fit: LaplaceFit, labels, centre_distance, mixture, chunk: slice) -> np.ndarray:
+        """1/2 delta^T H delta - E(P* + delta) - Pen(P* + delta) for the samples of ``chunk`` without the
+        penalty mixture; with it, -E - Pen - log(sum_c alpha_c exp(-Q_c)), Q_c = 1/2 (x - m_c)^T H (x - m_c)."""
+        offsets, half_quadratic = fit.factor.sample(self._noise_columns[:, chunk])
+        if mixture is None:
+            states = fit.x + offsets.T
+            return (half_quadratic - self.graph.energies_around(fit, offsets)
+                    - self._penalties(states, offsets, fit.x, labels, centre_distance))
+        # Component c draws the positions t of the penalised detections from N(t_c, S_c) and the rest of the
+        # poses from q_0's conditional given t: delta' = delta + R (tau' - tau), R = H^-1 B^T S^-1, with
+        # tau = B delta ~ N(0, S) and tau' = t_c - t* + L_c L^-1 tau. Then q_c(x) / q_0(x) is a ratio of
+        # 2m-dimensional normal densities of tau', and 1/2 delta'^T H delta' = 1/2 delta^T H delta
+        # - 1/2 |L^-1 tau|^2 + 1/2 |L^-1 tau'|^2 (since R^T H R = S^-1 and H R = B^T S^-1).
+        component_of = mixture.component_of[chunk]
+        local = _lower_solve(mixture.factor, mixture.selector.T @ offsets)  # L^-1 tau
+        moved = local.copy()
+        for c in range(1, len(mixture.means)):
+            columns = component_of == c
+            moved[:, columns] = mixture.means[c][:, None] + mixture.relative_factors[c] @ local[:, columns]
+        offsets = offsets + mixture.regression @ (moved - local)  # R (tau' - tau) = H^-1 B^T L^-T (u' - u)
+        quadratic_at_centre = half_quadratic + 0.5 * (np.einsum("ms,ms->s", moved, moved)
+                                                      - np.einsum("ms,ms->s", local, local))
+        exponents = np.empty((len(mixture.means), len(component_of)))
+        for c, (mean, relative_factor, log_det) in enumerate(zip(mixture.means, mixture.relative_factors,
+                                                                 mixture.relative_log_dets)):
+            standardised = (moved if c == 0 else
+                            _lower_solve(relative_factor, moved - mean[:, None]))
+            exponents[c] = (mixture.log_alphas[c] - 0.5 * np.einsum("ms,ms->s", standardised, standardised)
+                            - log_det + 0.5 * np.einsum("ms,ms->s", moved, moved))
+        largest = exponents.max(axis=0)
+        log_ratio = largest + np.log(np.sum(np.exp(exponents - largest), axis=0))  # log sum_c alpha_c q_c / q_0
         states = fit.x + offsets.T
-        return half_quadratic - self.graph.energies_around(fit, offsets) - self._penalties(states, offsets, fit.x, labels)
+        return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
+                - self._penalties(states, offsets, fit.x, labels, centre_distance))
 
-    def _penalties(self, states, offsets, centre, labels) -> np.ndarray:
+    def _penalty_mixture(self, fit: LaplaceFit, labels, centre_distance) -> "_PenaltyMixture | None":
+        """The defensive mixture of N(P*, H^-1) and a Laplace fit of the penalised target, or None when no pair
+        of different sets is within the penalty radius at P* (then P* is also a stationary point of E + Pen).
+
+        The second component is the Laplace fit of q_0(x) exp(-Pen(x)) over the positions t = B x of
+        the detections in the pairs penalised at P*: with S = B H^-1 B^T the covariance of t under
+        q_0, the mode t-dagger of 1/2 (t - t*)^T S^-1 (t - t*) + Pen(t) (damped Newton steps in these
+        2m dimensions) and the inverse Hessian there; the other poses follow q_0's conditional given t.
+        """
+        if self.model.max_penalty == 0.0 or self.n < 2:
+            return None
+        near = np.flatnonzero(centre_distance < self.model.penalty_radius)
+        near = near[labels[self._pair_first[near]] != labels[self._pair_second[near]]]
+        if not len(near):
+            return None
+        first, second = self._pair_first[near], self._pair_second[near]
+        detections = np.unique(np.concatenate([first, second]))
+        detections = detections[detections > 0]  # pose 0 is fixed at the origin
+        row = np.full(self.n, -1)  # pose 0 -> the origin row of _pair_penalty
+        row[detections] = np.arange(len(detections))
+        pairs = (row[first], row[second])
+        selector = _position_selector(detections, self.dimension)  # B^T, (d, 2m)
+        regression = fit.factor.solve(selector)  # H^-1 B^T
+        covariance = selector.T @ regression  # S = B H^-1 B^T
+        factor = np.linalg.cholesky(0.5 * (covariance + covariance.T))  # L
+        centre = selector.T @ fit.x  # t*: the positions of the penalised detections at P*
+        target = _penalty_mode(centre, (factor, True), pairs, self.model.penalty_radius, self.model.max_penalty)
+        # everything below lives in coordinates u = L^-1 (t - t*), where q_0 is N(0, I)
+        mean = scipy.linalg.solve_triangular(factor, target - centre, lower=True)
+        shift = float(np.linalg.norm(mean))  # |P-dagger - P*| in the metric of H
+        if shift < 1e-9:  # the penalty does not move the mode
+            return None
+        for tangential in (True, False):  # the exact Hessian of Pen, else its positive semi-definite part
+            _, _, hessian = _pair_penalty(target.reshape(-1, 2), pairs, self.model.penalty_radius,
+                                          self.model.max_penalty, derivatives=True, tangential=tangential)
+            try:
+                precision_factor = np.linalg.cholesky(np.eye(len(mean)) + factor.T @ hessian @ factor)
+                break
+            except np.linalg.LinAlgError:
+                continue
+        inverse = scipy.linalg.solve_triangular(precision_factor, np.eye(len(mean)), lower=True)
+        means = [np.zeros(len(mean)), mean]
+        factors = [np.eye(len(mean)), np.linalg.cholesky(inverse.T @ inverse)]  # F F^T = precision^-1
+        total = self.model.n_importance
+        counts = [total - int(total * (1.0 - DEFENSIVE_SHARE)), int(total * (1.0 - DEFENSIVE_SHARE))]
+        bounds = np.cumsum([0] + counts)
+        component_of = np.repeat(np.arange(len(means)), counts)
+        return _PenaltyMixture(
+            selector=selector,
+            regression=scipy.linalg.solve_triangular(factor, regression.T, lower=True, trans=0).T,
+            factor=factor,
+            means=means,
+            relative_factors=factors,
+            relative_log_dets=[float(np.sum(np.log(np.diag(f)))) for f in factors],
+            log_alphas=np.log(np.array(counts) / total),
+            component_of=component_of,
+            components=tuple(slice(bounds[c], bounds[c + 1]) for c in range(len(means))),
+            shift=shift,
+        )
+
+    def _penalties(self, states, offsets, centre, labels, centre_distance) -> np.ndarray:
         """Pen of every sample (``states``: (S, d), their ``offsets`` from the ``centre`` P*: (d, S));
         pairs that no sample can bring within the radius are skipped exactly."""
         if self.model.max_penalty == 0.0 or self.n < 2:
@@ -273,7 +409,6 @@ class OdometryTerm:
         reach[1:] = np.sqrt(np.max(offsets[0::3] ** 2 + offsets[1::3] ** 2, axis=1))
         # triangle inequality: |t_i^s - t_j^s| >= |t_i* - t_j*| - reach_i - reach_j; pdist orders
         # the pairs as triu_indices does
-        centre_distance = scipy.spatial.distance.pdist(poses_from_vector(centre)[:, :2])
         near = np.flatnonzero(centre_distance < self.model.penalty_radius + 2.0 * reach.max())
         first, second = self._pair_first[near], self._pair_second[near]
         may_touch = ((labels[first] != labels[second])
@@ -290,10 +425,133 @@ class OdometryTerm:
         self._factorisations_total += evaluation.factorisations
         self._ess_total += evaluation.ess
         self._ess_min = min(self._ess_min, evaluation.ess)
+        self._standard_error_total += evaluation.standard_error
+        self._standard_error_max = max(self._standard_error_max, evaluation.standard_error)
+        self._penalty_mixtures += evaluation.penalty_shift > 0.0
         self._seconds += seconds
 
     def __repr__(self) -> str:
         return f"OdometryTerm(n={self.n}, model={self.model!r})"
+
+
+@dataclass(frozen=True)
+class _PenaltyMixture:
+    """The proposal's components, in the coordinates u = L^-1 (t - t*) of the penalised detections'
+    positions t = B x, where q_0 = N(P*, H^-1) has u ~ N(0, I): component c draws u from
+    N(``means``[c], F_c F_c^T), F_c = ``relative_factors``[c], and the other poses from q_0's
+    conditional given t."""
+
+    selector: np.ndarray  # B^T, (d, 2m)
+    regression: np.ndarray  # H^-1 B^T L^-T, (d, 2m): the shift of all poses per unit of u
+    factor: np.ndarray  # L, lower Cholesky factor of S = B H^-1 B^T
+    means: list  # (2m,) per component, component 0 at 0
+    relative_factors: list  # (2m, 2m) lower triangular per component, component 0 the identity
+    relative_log_dets: list  # log det F_c
+    log_alphas: np.ndarray  # (K,): the share of the samples each component draws
+    component_of: np.ndarray  # (S,): the component that draws sample s
+    components: tuple  # slices of the samples of each component
+    shift: float  # |u-dagger| = sqrt((P-dagger - P*)^T H (P-dagger - P*))
+
+
+def _position_selector(detections, dimension: int) -> np.ndarray:
+    """B^T (d, 2m): column 2q + a picks t_i[a] of the q-th of the free ``detections`` i >= 1."""
+    matrix = np.zeros((dimension, 2 * len(detections)))
+    for axis in (0, 1):
+        matrix[3 * (detections - 1) + axis, 2 * np.arange(len(detections)) + axis] = 1.0
+    return matrix
+
+
+def _pair_penalty(positions, pairs, penalty_radius: float, max_penalty: float, derivatives: bool = False,
+                  tangential: bool = False):
+    """Pen of the positions t (m, 2) over ``pairs`` of rows (-1: pose 0 at the origin); with
+    ``derivatives`` also its gradient (m, 2) and its Hessian (2m, 2m) without the tangential part
+    f'(d)/d (I - u u^T) of each pair, which is negative (as Gauss-Newton leaves out residual
+    curvature): what is kept, f''(d) u u^T per pair, is positive semi-definite."""
+    first, second = pairs
+    padded = np.vstack([positions, np.zeros((1, 2))])  # row -1: the origin
+    separation = padded[first] - padded[second]
+    distances = np.hypot(separation[:, 0], separation[:, 1])
+    closeness = np.clip(1.0 - distances / penalty_radius, 0.0, None)
+    value = max_penalty * float(np.sum(closeness**3))
+    if not derivatives:
+        return value
+    units = separation / np.where(distances > 0.0, distances, np.inf)[:, None]
+    slope = -3.0 * max_penalty / penalty_radius * closeness**2  # f'(d)
+    curvature = 6.0 * max_penalty / penalty_radius**2 * closeness  # f''(d) >= 0
+    gradient = np.zeros_like(padded)
+    np.add.at(gradient, first, slope[:, None] * units)
+    np.add.at(gradient, second, -slope[:, None] * units)
+    blocks = curvature[:, None, None] * units[:, :, None] * units[:, None, :]
+    if tangential:
+        bend = slope / np.where(distances > 0.0, distances, np.inf)
+        blocks += bend[:, None, None] * (np.eye(2) - units[:, :, None] * units[:, None, :])
+    hessian = np.zeros((len(padded), 2, len(padded), 2))
+    for a, b, sign in ((first, first, 1.0), (second, second, 1.0), (first, second, -1.0), (second, first, -1.0)):
+        np.add.at(hessian, (a, slice(None), b), sign * blocks)
+    size = 2 * len(positions)
+    return value, gradient[:-1].ravel(), hessian.reshape(len(padded) * 2, -1)[:size, :size]
+
+
+def _penalty_mode(centre, covariance_factor, pairs, penalty_radius: float, max_penalty: float,
+                  max_iterations: int = 100) -> np.ndarray:
+    """argmin_t 1/2 (t - t*)^T S^-1 (t - t*) + Pen(t) over the positions t (2m,) of the penalised
+    detections, from t = t*, by Newton steps (on Pen's positive semi-definite Hessian part where
+    the exact one makes the system indefinite) with backtracking.
+
+    Converged to rounding (the mode has to be a smooth function of P*: a sampler's value of a
+    partition must not depend on where its fit was warm-started).
+    """
+    precision = scipy.linalg.cho_solve(covariance_factor, np.eye(len(centre)))
+    point = centre.copy()
+
+    def objective(t):
+        offset = t - centre
+        return 0.5 * float(offset @ precision @ offset) + _pair_penalty(t.reshape(-1, 2), pairs, penalty_radius,
+                                                                      max_penalty)
+
+    value = objective(point)
+    for _ in range(max_iterations):
+        _, penalty_gradient, penalty_hessian = _pair_penalty(point.reshape(-1, 2), pairs, penalty_radius,
+                                                             max_penalty, derivatives=True, tangential=True)
+        gradient = precision @ (point - centre) + penalty_gradient
+        try:
+            step = -_positive_definite_solve(precision + penalty_hessian, gradient)
+        except np.linalg.LinAlgError:
+            _, _, penalty_hessian = _pair_penalty(point.reshape(-1, 2), pairs, penalty_radius, max_penalty,
+                                                  derivatives=True)
+            step = -_positive_definite_solve(precision + penalty_hessian, gradient)
+        slope = float(gradient @ step)
+        if slope > -1e-14 * (1.0 + abs(value)):
+            break
+        length = 1.0
+        while length > 1e-10:
+            candidate = point + length * step
+            candidate_value = objective(candidate)
+            if candidate_value <= value + 1e-4 * length * slope:
+                break
+            length *= 0.5
+        else:
+            break
+        point, value = candidate, candidate_value
+        if np.max(np.abs(length * step)) < 1e-12 * (1.0 + np.max(np.abs(point))):
+            break
+    return point
+
+
+def _lower_solve(lower, rhs) -> np.ndarray:
+    """lower^-1 rhs for a lower-triangular ``lower`` (LAPACK directly: the checked wrapper costs more here)."""
+    solution, info = scipy.linalg.lapack.dtrtrs(lower, rhs, lower=1)
+    if info != 0:
+        raise ValueError(f"triangular solve failed (LAPACK info {info})")
+    return solution
+
+
+def _positive_definite_solve(matrix, rhs) -> np.ndarray:
+    """matrix^-1 rhs by Cholesky; ``numpy.linalg.LinAlgError`` when matrix is not positive definite."""
+    lower = np.linalg.cholesky(matrix)
+    return scipy.linalg.solve_triangular(lower.T, scipy.linalg.solve_triangular(lower, rhs, lower=True,
+                                                                                check_finite=False),
+                                         lower=False, check_finite=False)
 
 
 def _canonical_labels(partition) -> tuple[int, ...]:
