@@ -46,7 +46,7 @@ import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
 __all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "register", "true_odometry"]
 
-GENERATOR_VERSION = "ptm_bench.generate/2"  # 2: decor panels on a uniform, hazy background; near plane 3 cm
+GENERATOR_VERSION = "ptm_bench.generate/3"  # 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
 
 
 def generate_dataset(

@@ -136,6 +136,8 @@ class PurePursuit:
     """Follows a polyline by steering towards the point ``lookahead`` metres further along it."""
 
     RESOLUTION = 0.05  # [m] spacing of the resampled path
+    SHARP_TURN = math.radians(100.0)  # a turn sharper than this is a stop-and-turn
+    ARRIVED = 0.1  # [m] within this of a stop (or the end) the robot has reached it
 
     def __init__(self, waypoints: np.ndarray, config: ControllerConfig):
         waypoints = np.asarray(waypoints, dtype=float)
@@ -144,10 +146,17 @@ class PurePursuit:
         keep = lengths > 1e-9
         starts, segments, lengths = waypoints[:-1][keep], segments[keep], lengths[keep]
         points = [waypoints[0][None]]
+        corners = []  # index in ``points`` of each waypoint between two segments
         for start, segment, length in zip(starts, segments, lengths):
             count = max(1, int(math.ceil(length / self.RESOLUTION)))
             points.append(start + segment * (np.arange(1, count + 1) / count)[:, None])
+            corners.append(sum(len(chunk) for chunk in points) - 1)
         self.points = np.concatenate(points)
+        # Sharp turns (a dead end's U-turn) are driven to and turned on the spot: pure pursuit would
+        # cut them by up to the look-ahead and never reach the waypoint (nor a place there).
+        headings = np.arctan2(segments[:, 1], segments[:, 0])
+        turns = np.abs(np.angle(np.exp(1j * np.diff(headings))))
+        self.stops = [corners[k] for k in np.flatnonzero(turns > self.SHARP_TURN)] + [len(self.points) - 1]
         self.config = config
         self.index = 0
         self.window = int(math.ceil(2.0 / self.RESOLUTION))
@@ -159,17 +168,21 @@ class PurePursuit:
 
     def command(self, pose: np.ndarray, speed: float) -> tuple[float, float]:
         """(forward speed, yaw rate) for the current true pose."""
-        stop = min(len(self.points), self.index + self.window)
-        nearest = self.index + int(np.argmin(np.linalg.norm(self.points[self.index:stop] - pose[:2], axis=1)))
+        limit = next(stop for stop in self.stops if stop >= self.index)
+        end = min(len(self.points), self.index + self.window, limit + 1)
+        nearest = self.index + int(np.argmin(np.linalg.norm(self.points[self.index:end] - pose[:2], axis=1)))
         self.index = max(self.index, nearest)
-        if self.index >= len(self.points) - 2 and np.linalg.norm(self.points[-1] - pose[:2]) < 0.1:
-            self.index = len(self.points) - 1
-            return 0.0, 0.0
-        target = self.points[min(len(self.points) - 1, self.index + self.ahead)]
+        if self.index >= limit - 1 and np.linalg.norm(self.points[limit] - pose[:2]) < self.ARRIVED:
+            if limit == len(self.points) - 1:
+                self.index = limit
+                return 0.0, 0.0
+            self.index = limit + 1  # arrived at a sharp turn: aim along the next leg
+            limit = next(stop for stop in self.stops if stop >= self.index)
+        target = self.points[min(limit, self.index + self.ahead)]
         error = math.atan2(target[1] - pose[1], target[0] - pose[0]) - pose[2]
         error = math.atan2(math.sin(error), math.cos(error))
         yaw_rate = float(np.clip(self.config.heading_gain * error, -self.config.max_yaw_rate, self.config.max_yaw_rate))
-        remaining = np.linalg.norm(self.points[-1] - pose[:2])
+        remaining = np.linalg.norm(self.points[limit] - pose[:2])
         forward = speed * max(0.0, math.cos(error)) ** 2 * min(1.0, remaining / self.config.lookahead + 0.2)
         return forward, yaw_rate
 
