@@ -107,12 +107,10 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
         ))
     if "appearance" in settings["models"]:
         appearance = settings["appearance"]
-        if appearance["hyperparameters"] != "fit":
-            raise ValueError(f"appearance.hyperparameters = {appearance['hyperparameters']!r} is not implemented; "
-                             "use 'fit' (empirical Bayes on the calibration seeds)")
-        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["evidence"])
+        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"])
+        names = ("mu", "kappa", "nu", "psi") if appearance["model"] == "joint" else ("mu", "kappa", "alpha", "beta")
         used["appearance_hyperparameters"] = json.dumps(
-            {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in ("mu", "kappa", "alpha", "beta")})
+            {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names})
         models.append(model)
     used["prior_rate"], used["source_prior_rate"] = prior_rate(settings["inference"], dataset.n, held_out)
     return ptm.Posterior(dataset, ptm.PoissonPrior(used["prior_rate"]), models), used
@@ -123,9 +121,12 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     posterior, used = build_posterior(cell, dataset)
     sampler_seed, _ = _inference_seeds(cell["seed"])
     moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
-    if inference["method"] == "exact":
+    method = inference["method"]
+    if method == "auto":  # the exact posterior is the reference wherever it is affordable
+        method = "exact" if dataset.n <= inference["exact_max_n"] else "tempered"
+    if method == "exact":
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
-    elif inference["method"] == "tempered":
+    elif method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
                                    chains=inference["chains"], moves=moves,
@@ -136,6 +137,7 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
                           delayed_acceptance=inference["delayed_acceptance"])
     row = scoring.score(scoring.distribution_of(result), dataset.labels, coassignment=result.coassignment())
     row.update(used)
+    row["inference_method"] = method
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
     row["top5"] = json.dumps([[list(labels), round(probability, 6)] for labels, probability in result.top(TOP_K)])

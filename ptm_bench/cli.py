@@ -17,6 +17,7 @@ import sys
 COMMAND_MODULES = (
     "ptm_bench.demo",
     "ptm_bench.run_cli",
+    "ptm_bench.appearance_check",
     "ptm_bench.speed",
     "ptm_bench.worlds_cli",
     "ptm_bench.generate",

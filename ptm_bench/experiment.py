@@ -39,9 +39,9 @@ __all__ = ["DEFAULTS", "MODEL_NAMES", "BASELINE_NAMES", "Experiment", "describe"
 
 MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
-METHODS = ("mcmc", "tempered", "exact")
-HYPERPARAMETER_SOURCES = ("fit", "paper")
+METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
+APPEARANCE_MODELS = ("joint", "independent")
 WORLD_GENERATORS = ("corridor_grid",)
 
 #: Every section and key a config may set, with its default. ``None`` means "required" for
@@ -79,10 +79,10 @@ DEFAULTS = {
         "n_importance": 100,
     },
     "appearance": {
-        # "fit": empirical Bayes on the calibration seeds; "paper" (s2 mean 500, variance 50) is not implemented
-        # yet, and a cell that asks for it fails saying so
-        "hyperparameters": "fit",
-        "evidence": "corrected",
+        # "independent": the paper's per-component model (the default: it passes the predictive check of
+        # `ptm-bench appearance-check`, results/appearance_check/); "joint": Normal-Inverse-Wishart over the K-vector
+        "model": "independent",
+        "evidence": "corrected",  # "paper_eq19" (the printed formula) exists for the independent model only
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
 }
@@ -248,8 +248,11 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
         merged[section] = {**sections[section], **overrides}
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
     _check_choice(merged["inference"]["moves"], ("default", "paper"), f"{where} inference.moves", source)
-    _check_choice(merged["appearance"]["hyperparameters"], HYPERPARAMETER_SOURCES, f"{where} appearance.hyperparameters", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
+    _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
+    if merged["appearance"]["evidence"] != "corrected" and merged["appearance"]["model"] != "independent":
+        raise ValueError(f"{source}: {where}: appearance.evidence = {merged['appearance']['evidence']!r} needs "
+                         "appearance.model = 'independent' (the printed eq. 19 is a form of the paper's model)")
     return merged
 
 

@@ -14,6 +14,9 @@
   pooled reliability table (:func:`ptm_bench.scoring.reliability_table`), the
   diagonal for reference, and the pairs per bin in a lower panel.
 * :func:`sampler_traces` — log P(T | Z) and the number of places along each chain.
+* :func:`pit_histograms` — per world and appearance model, the histogram of the
+  probability integral transform of held-out revisits, one line per signature
+  component (flat at 1 when the predictive is calibrated).
 
     >>> trajectories(dataset, Path("results/exp3_nested/trajectory.png"), title="nested_loops, seed 0")
     >>> top_topologies(dataset.true_poses, [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=Path("top.png"))
@@ -38,7 +41,8 @@ from ptm.dataset import atomic_write  # noqa: E402
 
 from .baselines import dead_reckoning  # noqa: E402
 
-__all__ = ["mass_heatmap", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string", "trajectories"]
+__all__ = ["mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string",
+           "trajectories"]
 
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
 
@@ -213,4 +217,31 @@ def sampler_traces(traces: dict, path: Path, title: str = "") -> Path:
     axes_column[0, 0].legend(fontsize=7, loc="best")
     if title:
         axes_column[0, 0].set_title(title, fontsize=10)
+    return _save(figure, path)
+
+
+def pit_histograms(pit, path: Path, bins: int = 10) -> Path:
+    """One panel per world (rows) and model (columns): density of the PIT values per component.
+
+    ``pit`` is a table with columns world, model, component and pit (values in [0, 1]).
+    """
+    worlds, models = list(dict.fromkeys(pit["world"])), list(dict.fromkeys(pit["model"]))
+    figure, axes = plt.subplots(len(worlds), len(models), figsize=(4.2 * len(models), 2.6 * len(worlds)),
+                                squeeze=False, sharex=True, sharey=True)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    centres = (edges[:-1] + edges[1:]) / 2
+    for row, world in enumerate(worlds):
+        for column, model in enumerate(models):
+            axis = axes[row, column]
+            panel = pit[(pit["world"] == world) & (pit["model"] == model)]
+            for component, values in panel.groupby("component")["pit"]:
+                density, _ = np.histogram(values, bins=edges, density=True)
+                axis.plot(centres, density, marker="o", markersize=3, label=f"component {component}")
+            axis.axhline(1.0, color="black", linewidth=0.8, linestyle="--")
+            axis.set_title(f"{world}: {model}", fontsize=9)
+            if column == 0:
+                axis.set_ylabel("density")
+            if row == len(worlds) - 1:
+                axis.set_xlabel("PIT of a held-out revisit")
+    axes[0, -1].legend(fontsize=7)
     return _save(figure, path)

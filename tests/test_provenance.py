@@ -151,7 +151,7 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
         calibration.calibration_datasets(cells[0])))
     assert inference["source_sigma_topology"] == "sensor spec: 2 x detection radius 0.5 m"
     assert inference["sigma_topology"] == pytest.approx(1.0)
-    assert inference["source_appearance"] == "empirical Bayes on 2 held-out runs"
+    assert inference["source_appearance"] == "empirical Bayes (independent) on 2 held-out runs"
     assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs"
     assert inference["aliasing_auc"] == baseline["aliasing_auc"] == 0.93
 

@@ -235,7 +235,7 @@ baselines = ["greedy_odometry", "appearance_threshold"]
 worlds = ["short_loop"]
 aliasing = [0.0, 1.0]
 seeds = [0]
-calibration_seeds = [10]
+calibration_seeds = [10, 11, 12]
 [inference]
 n_samples = 300
 burn_in = 50

@@ -1,0 +1,188 @@
+"""Predictive check of the appearance models on held-out simulated runs (SPEC §3.2, §6).
+
+An appearance model is fitted by empirical Bayes on labelled calibration runs
+and then asked about runs it has never seen, at aliasing 0 (every place has
+its own decor, so a good model should rarely be fooled):
+
+* **revisit pairs favouring "split"**: the share of pairs of detections of one
+  place whose Bayes factor log p({i, j}) - log p({i}) - log p({j}) is below 0;
+* **different-place pairs favouring "merge"**: the share of pairs of distinct
+  places whose Bayes factor is above 0;
+* **probability integral transform (PIT)** of each revisit under the
+  posterior predictive given the other visits of its place, per signature
+  component (uniform on [0, 1] when the model's predictive is calibrated; piled
+  up at 0 and 1 when it is overconfident), with the share of two-sided
+  predictive p-values below 0.001 (0.1 % expected) and the Kolmogorov-Smirnov
+  p-value against the uniform.
+
+The joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
+paper's independent-component model (``ptm.AppearanceModel``) are checked on
+the same runs. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
+``summary.md`` and ``pit.png`` to its output folder.
+
+    >>> table, pit = predictive_check({"office": "office"}, runs=30, calibration_runs=10)
+    >>> table[["world", "model", "revisits_favouring_split", "different_favouring_merge"]]
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+import ptm
+
+from ptm.dataset import atomic_write
+
+from .datacache import dataset_for
+
+__all__ = ["APPEARANCE_MODELS", "DEFAULT_WORLDS", "PIT_BINS", "predictive_check", "register", "write_report"]
+
+#: The models checked: name -> how to fit it on labelled calibration datasets.
+APPEARANCE_MODELS = {
+    "joint": ptm.JointAppearanceModel.fit,
+    "independent": ptm.AppearanceModel.fit,
+}
+DEFAULT_WORLDS = {
+    "office": "office",
+    "nested_loops": "nested_loops",
+    "grid3x3": {"generator": "corridor_grid", "name": "grid3x3", "rows": 3, "cols": 3, "loops": 2, "place_density": 0.6},
+}
+PIT_BINS = 10
+EXTREME_P = 1e-3  # a two-sided predictive p-value below this is an "extreme" visit
+CALIBRATION_FIRST_SEED = 1000
+
+
+def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, aliasing: float = 0.0,
+                     noise: float = 1.0, cache_dir=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Fit every model on ``calibration_runs`` runs per world and check it on ``runs`` others.
+
+    Returns (one row per world and model with the pair shares and PIT summaries,
+    one row per world, model, held-out visit and component with its PIT value).
+    Scored runs use seeds 0..runs-1, calibration runs 1000..; they never overlap.
+    """
+    if runs < 1 or calibration_runs < 1:
+        raise ValueError(f"runs and calibration_runs must be >= 1, got {runs} and {calibration_runs}")
+    if runs > CALIBRATION_FIRST_SEED:
+        raise ValueError(f"runs must be at most {CALIBRATION_FIRST_SEED} so scored and calibration seeds stay apart")
+    rows, pit_rows = [], []
+    for world_name, world_spec in worlds.items():
+        def datasets(seeds):
+            return [dataset_for(world_spec, aliasing, noise, seed, cache_dir=cache_dir) for seed in seeds]
+
+        calibration = datasets(range(CALIBRATION_FIRST_SEED, CALIBRATION_FIRST_SEED + calibration_runs))
+        scored = datasets(range(runs))
+        for model_name, fit in APPEARANCE_MODELS.items():
+            started = time.perf_counter()
+            model = fit(calibration)
+            row, pits = _check(model, scored)
+            rows.append({"world": world_name, "model": model_name, "runs": runs,
+                         "calibration_runs": calibration_runs, "aliasing": aliasing, "noise": noise,
+                         "aliasing_auc": float(np.nanmean([d.meta.get("aliasing_auc", np.nan) for d in scored])),
+                         **row, "wall_s": time.perf_counter() - started})
+            pit_rows.extend({"world": world_name, "model": model_name, "visit": visit, "component": component,
+                             "pit": value}
+                            for visit, values in enumerate(pits) for component, value in enumerate(values))
+    return pd.DataFrame(rows), pd.DataFrame(pit_rows)
+
+
+def _check(model, datasets) -> tuple[dict, np.ndarray]:
+    same_factors, different_factors, pits = [], [], []
+    for dataset in datasets:
+        real = dataset.labels >= 0
+        signatures, labels = dataset.signatures[real], dataset.labels[real]
+        term = model.bind(ptm.Dataset(signatures=signatures))
+        factors = ptm.pairwise_log_bayes_factors(term)
+        upper = np.triu_indices(len(labels), 1)
+        same = labels[upper[0]] == labels[upper[1]]
+        same_factors.append(factors[upper][same])
+        different_factors.append(factors[upper][~same])
+        loo = ptm.leave_one_out_pit(term, labels)
+        pits.append(loo[~np.isnan(loo).any(axis=1)])
+    same_factors = np.concatenate(same_factors)
+    different_factors = np.concatenate(different_factors)
+    pits = np.concatenate(pits)
+    two_sided = 2 * np.minimum(pits, 1 - pits)
+    row = {
+        "revisit_pairs": same_factors.size,
+        "revisits_favouring_split": float(np.mean(same_factors < 0)) if same_factors.size else np.nan,
+        "different_pairs": different_factors.size,
+        "different_favouring_merge": float(np.mean(different_factors > 0)) if different_factors.size else np.nan,
+        "held_out_visits": pits.shape[0],
+        "extreme_share_max": float((two_sided < EXTREME_P).mean(axis=0).max()) if pits.size else np.nan,
+    }
+    for component in range(pits.shape[1]):
+        row[f"extreme_share_{component}"] = float(np.mean(two_sided[:, component] < EXTREME_P))
+        row[f"ks_p_{component}"] = float(stats.kstest(pits[:, component], "uniform").pvalue)
+    return row, pits
+
+
+def write_report(table: pd.DataFrame, pit: pd.DataFrame, out: Path) -> Path:
+    """``checks.csv``, ``pit.csv``, ``pit.png`` and ``summary.md`` in ``out``."""
+    from . import plots
+    from .summary import markdown_table
+
+    out.mkdir(parents=True, exist_ok=True)
+    for name, frame in (("checks.csv", table), ("pit.csv", pit)):
+        atomic_write(out / name, lambda handle, frame=frame: handle.write(frame.to_csv(index=False).encode()))
+    figure = plots.pit_histograms(pit, out / "pit.png", bins=PIT_BINS)
+    shown = table[["world", "model", "runs", "calibration_runs", "aliasing_auc", "revisit_pairs",
+                   "revisits_favouring_split", "different_pairs", "different_favouring_merge",
+                   "held_out_visits", "extreme_share_max"]]
+    ks = table[["world", "model", *[c for c in table.columns if c.startswith("ks_p_")]]]
+    lines = [
+        "# Appearance predictive check",
+        "",
+        "Each model is fitted by empirical Bayes on the calibration runs (seeds 1000..) and checked on held-out "
+        "runs (seeds 0..) at the same condition. `revisits_favouring_split`: share of same-place detection pairs "
+        "whose appearance Bayes factor favours two places (target <= 0.02); `different_favouring_merge`: share of "
+        "different-place pairs whose Bayes factor favours one place (target <= 0.02); `extreme_share_max`: the "
+        f"largest share, over signature components, of held-out revisits whose two-sided predictive p-value is "
+        f"below {EXTREME_P:g} (expected {EXTREME_P:g}); `aliasing_auc`: mean measured aliasing of the held-out runs.",
+        "",
+        markdown_table(shown),
+        "",
+        "Kolmogorov-Smirnov p-values of each component's PIT values against the uniform:",
+        "",
+        markdown_table(ks),
+        "",
+        f"![PIT histograms]({figure.name})",
+        "",
+        "*Probability integral transform of each held-out revisit under the posterior predictive given the other "
+        "visits of its place, per component (flat = calibrated; U-shaped = overconfident).*",
+        "",
+    ]
+    summary = out / "summary.md"
+    atomic_write(summary, lambda handle: handle.write("\n".join(lines).encode()))
+    return summary
+
+
+# -- command line ---------------------------------------------------------------------------------
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "appearance-check",
+        help="predictive check of the appearance models on held-out simulated runs",
+        description="Fit the joint and the independent appearance models on calibration runs and report how "
+                    "often they are fooled on held-out runs (Bayes factors of pairs, PIT of revisits).",
+    )
+    parser.add_argument("--worlds", nargs="+", default=list(DEFAULT_WORLDS), choices=list(DEFAULT_WORLDS),
+                        help="worlds to check (default: all)")
+    parser.add_argument("--runs", type=int, default=30, help="held-out runs per world (default 30)")
+    parser.add_argument("--calibration-runs", type=int, default=10, help="calibration runs per world (default 10)")
+    parser.add_argument("--out", type=Path, default=Path("results/appearance_check"), help="output folder")
+    parser.set_defaults(handler=_run)
+
+
+def _run(args) -> int:
+    worlds = {name: DEFAULT_WORLDS[name] for name in args.worlds}
+    table, pit = predictive_check(worlds, args.runs, args.calibration_runs, cache_dir=args.out / "datasets")
+    summary = write_report(table, pit, args.out)
+    columns = ["world", "model", "revisits_favouring_split", "different_favouring_merge", "extreme_share_max"]
+    print(table[columns].to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    print(f"wrote {summary}")
+    return 0
