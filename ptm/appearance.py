@@ -44,8 +44,9 @@ from scipy.special import gammaln
 from ._validation import finite_array, positive, positive_array
 from .partitions import Partition
 
-__all__ = ["AppearanceModel", "IndependentStudentT", "inverse_gamma_from_mean_variance", "leave_one_out_pit",
-           "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density", "predictive_pit"]
+__all__ = ["AppearanceModel", "IndependentStudentT", "calibration_groups", "inverse_gamma_from_mean_variance",
+           "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
+           "predictive_pit"]
 
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 
@@ -114,19 +115,8 @@ class AppearanceModel:
         Never fit on the data you then score: use separate calibration runs.
         """
         max_alpha = positive("max_alpha", max_alpha)
-        datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
-        if not datasets:
-            raise ValueError("fit needs at least one labelled dataset")
-        groups = []
-        for index, dataset in enumerate(datasets):
-            if dataset.signatures is None or dataset.labels is None:
-                raise ValueError(f"calibration dataset {index} needs signatures and labels")
-            for block in Partition.from_labels(dataset.labels).blocks:
-                groups.append(dataset.signatures[list(block)])
-        widths = {group.shape[1] for group in groups}
-        if len(widths) != 1:
-            raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
-        width = widths.pop()
+        groups = calibration_groups(datasets)
+        width = groups[0].shape[1]
         fitted = np.array([_fit_component([group[:, k] for group in groups], evidence, max_alpha)
                            for k in range(width)])
         mu, kappa, alpha, beta = fitted.T
@@ -309,6 +299,35 @@ def _held_out_and_given(term, held_out, given) -> tuple[int, tuple]:
     if held_out in given or len(set(given)) != len(given):
         raise ValueError(f"given must list distinct detections other than held_out={held_out}, got {given}")
     return held_out, given
+
+
+def calibration_groups(datasets) -> list[np.ndarray]:
+    """The signatures of each ground-truth place of labelled calibration datasets, one (n, K) array per place.
+
+    Refuses (``ValueError``, naming the problem) an empty list, a dataset
+    without signatures or labels, datasets of different K, and a component that
+    is constant over the whole set (its variance would be fitted as zero: a
+    model certain that every visit repeats that value exactly).
+    """
+    datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
+    if not datasets:
+        raise ValueError("fit needs at least one labelled dataset")
+    groups = []
+    for index, dataset in enumerate(datasets):
+        if dataset.signatures is None or dataset.labels is None:
+            raise ValueError(f"calibration dataset {index} needs signatures and labels")
+        for block in Partition.from_labels(dataset.labels).blocks:
+            groups.append(dataset.signatures[list(block)])
+    widths = {group.shape[1] for group in groups}
+    if len(widths) != 1:
+        raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
+    values = np.concatenate(groups)
+    centre, spread = values.mean(axis=0), values.std(axis=0)
+    for k in range(values.shape[1]):
+        if not spread[k] > 1e-12 * max(1.0, abs(centre[k])):
+            raise ValueError(f"signature component {k} is constant ({centre[k]:.6g}) over the whole calibration "
+                             "set: its variance is degenerate; drop the component or calibrate on varied data")
+    return groups
 
 
 def _component_evidence(params: np.ndarray, groups: list[np.ndarray], evidence: str) -> float:

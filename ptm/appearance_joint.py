@@ -45,6 +45,7 @@ from scipy.optimize import minimize
 from scipy.special import digamma, multigammaln
 
 from ._validation import finite_array, positive
+from .appearance import calibration_groups
 from .partitions import Partition
 
 __all__ = ["JointAppearanceModel", "JointAppearanceTerm", "MultivariateStudentT"]
@@ -162,7 +163,7 @@ class JointAppearanceModel:
             The optimiser did not converge (after one restart from where it stopped).
         """
         max_dof = positive("max_dof", max_dof)
-        groups = _calibration_groups(datasets)
+        groups = calibration_groups(datasets)
         return _fit(cls, groups, shrinkage, max_dof)
 
     def __repr__(self) -> str:
@@ -266,22 +267,6 @@ def _log_det(matrix: np.ndarray) -> float:
 # -- empirical Bayes -------------------------------------------------------------------------------
 
 
-def _calibration_groups(datasets) -> list[np.ndarray]:
-    datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
-    if not datasets:
-        raise ValueError("fit needs at least one labelled dataset")
-    groups = []
-    for index, dataset in enumerate(datasets):
-        if dataset.signatures is None or dataset.labels is None:
-            raise ValueError(f"calibration dataset {index} needs signatures and labels")
-        for block in Partition.from_labels(dataset.labels).blocks:
-            groups.append(dataset.signatures[list(block)])
-    widths = {group.shape[1] for group in groups}
-    if len(widths) != 1:
-        raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
-    return groups
-
-
 class _Statistics:
     """Per-place sufficient statistics of standardised calibration signatures, stacked for vectorised evidence."""
 
@@ -372,16 +357,12 @@ class _Parametrisation:
 
 
 def _standardise(groups: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Per-component centre and scale of the calibration set; refuse degenerate components."""
+    """Per-component centre and scale of the calibration set; refuse linearly dependent components."""
     values = np.concatenate(groups)
     if values.shape[0] < values.shape[1] + 1:
         raise ValueError(f"the calibration set has {values.shape[0]} signatures for K={values.shape[1]} components: "
                          f"at least K + 1 are needed to span the signature space")
-    centre, scale = values.mean(axis=0), values.std(axis=0)
-    for k in range(values.shape[1]):
-        if not scale[k] > 1e-12 * max(1.0, abs(centre[k])):
-            raise ValueError(f"signature component {k} is constant ({centre[k]:.6g}) over the whole calibration "
-                             "set: its covariance is degenerate; drop the component or calibrate on varied data")
+    centre, scale = values.mean(axis=0), values.std(axis=0)  # calibration_groups refused constant components
     standard = (values - centre) / scale
     eigenvalues, eigenvectors = np.linalg.eigh(standard.T @ standard / values.shape[0])
     if eigenvalues[0] < 1e-10 * eigenvalues[-1]:

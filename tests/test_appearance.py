@@ -96,3 +96,11 @@ def test_hyperparameter_length_must_match_signatures():
         AppearanceModel(0.0, np.ones(3), 1.0, 1.0).bind(Dataset(signatures=np.ones((4, 5))))
     with pytest.raises(ValueError, match="evidence"):
         AppearanceModel(0.0, 1.0, 1.0, 1.0, evidence="eq19")
+
+
+def test_fit_refuses_a_component_that_never_varies():
+    rng = np.random.default_rng(0)
+    signatures = np.column_stack([rng.normal(size=6), np.full(6, 0.3)])
+    calibration = Dataset(signatures=signatures, labels=np.array([0, 1, 0, 1, 2, 2]))
+    with pytest.raises(ValueError, match="signature component 1 is constant"):
+        AppearanceModel.fit([calibration])
