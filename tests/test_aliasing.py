@@ -33,8 +33,8 @@ def test_auc_is_undefined_without_revisits_and_ignores_false_detections():
 def test_the_aliasing_knob_spans_the_measured_range():
     """nested_loops (8 places): a = 0 separates places by appearance, a = 1 leaves chance.
 
-    Measured with the full rig over seeds 0-4: mean AUC 0.999 at a = 0 and 0.544 at a = 1
-    (office 1.0 / 0.442, 4 x 4 grids 0.987 / 0.573). Two seeds with small images here.
+    Measured with the full rig over seeds 0-4: mean AUC 1.000 at a = 0 and 0.504 at a = 1
+    (office 1.000 / 0.440, 3 x 3 grids 1.000 / 0.521). Two seeds with small images here.
     """
     small = RigConfig(image_height=24, image_width=32)
     auc = {a: [generate_dataset("nested_loops", a, 1.0, seed, images=False, rig=small).meta["aliasing_auc"]
