@@ -15,7 +15,7 @@ from pathlib import Path
 
 from .cell import run_cell
 from .experiment import describe, expand_cells, load_experiment
-from .summary import aggregate, markdown_table, write_summary
+from .summary import aggregate, current_rows, markdown_table, write_summary
 from .sweep import run_sweep
 
 SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
@@ -46,7 +46,10 @@ def run(args) -> int:
         print(f"{table.attrs['reused_unverified']} cells were reused from a table written before configs were recorded; "
               f"delete {results_dir / 'cells.csv'} to recompute them")
     summary_path = write_summary(experiment, table, results_dir, figures=not args.no_figures)
-    summary = aggregate(table)
+    current, left_out = current_rows(experiment, table, results_dir)
+    summary = aggregate(current)
+    if left_out["stale"]:
+        print(f"{left_out['stale']} rows of cells no longer in the config are kept in the table but left out here")
     if len(summary):
         print(markdown_table(summary[SHOWN_COLUMNS]))
     failed = int((table["status"] != "ok").sum())
