@@ -210,3 +210,13 @@ def test_a_cell_definition_follows_the_world_content_and_the_simulator_version(t
     assert all(new != old for new, old in zip(after_bump, after_edit))
     monkeypatch.setattr(cell_module, "CELL_VERSION", "ptm_bench.cell/test")  # the rules turning a dataset into a row
     assert all(new != old for new, old in zip(definitions(), after_bump))
+
+
+@pytest.mark.parametrize("exact_max_n, chosen", [(9, "exact"), (8, "tempered")])
+def test_auto_method_is_exact_up_to_its_limit_and_tempered_beyond(tmp_path, exact_max_n, chosen):
+    config = copy.deepcopy(CONFIG)
+    config["inference"] = {**config["inference"], "method": "auto", "exact_max_n": exact_max_n}
+    config["variants"] = [{"name": "appearance", "models": ["appearance"]}]
+    row = run_cell(cells_with_cached_datasets(tmp_path, config)[0])
+    assert row["inference_method"] == chosen  # the scored loop has N = 9 detections
+    assert (row["n_topologies"] == 21147) == (chosen == "exact")
