@@ -305,7 +305,8 @@ def calibration_groups(datasets) -> list[np.ndarray]:
     """The signatures of each ground-truth place of labelled calibration datasets, one (n, K) array per place.
 
     Refuses (``ValueError``, naming the problem) an empty list, a dataset
-    without signatures or labels, datasets of different K, and a component that
+    without signatures or labels, datasets of different K, a set without a
+    single revisit, and a component that
     is constant over the whole set (its variance would be fitted as zero: a
     model certain that every visit repeats that value exactly).
     """
@@ -321,6 +322,9 @@ def calibration_groups(datasets) -> list[np.ndarray]:
     widths = {group.shape[1] for group in groups}
     if len(widths) != 1:
         raise ValueError(f"calibration datasets have different signature lengths {sorted(widths)}")
+    if all(group.shape[0] == 1 for group in groups):
+        raise ValueError("the calibration set has no revisits (every place is visited once): the within-place "
+                         "spread cannot be told apart from the spread between places")
     values = np.concatenate(groups)
     centre, spread = values.mean(axis=0), values.std(axis=0)
     for k in range(values.shape[1]):

@@ -391,9 +391,6 @@ def _fit(cls, groups, shrinkage, max_dof: float) -> JointAppearanceModel:
     centre, scale = _standardise(groups)
     data = _Statistics([(group - centre) / scale for group in groups])
     n_covariance = width * (width + 1) // 2
-    if data.dof == 0:
-        raise ValueError("the calibration set has no revisits (every place is visited once): the within-place "
-                         "covariance cannot be told apart from the spread between places")
     if isinstance(shrinkage, str):
         if shrinkage != "auto":
             raise ValueError(f"shrinkage must be 'auto' or a number in [0, 1], got {shrinkage!r}")

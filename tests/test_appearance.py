@@ -104,3 +104,9 @@ def test_fit_refuses_a_component_that_never_varies():
     calibration = Dataset(signatures=signatures, labels=np.array([0, 1, 0, 1, 2, 2]))
     with pytest.raises(ValueError, match="signature component 1 is constant"):
         AppearanceModel.fit([calibration])
+
+
+def test_fit_refuses_calibration_runs_without_a_revisit():
+    calibration = Dataset(signatures=np.random.default_rng(0).normal(size=(6, 2)), labels=np.arange(6))
+    with pytest.raises(ValueError, match="no revisits"):
+        AppearanceModel.fit([calibration])
