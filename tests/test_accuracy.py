@@ -6,12 +6,13 @@ eight seeds (0-7), recorded in each test's docstring (``run_conditions(folder,
 seeds=range(8))`` repeats them, about 8 minutes on two cores); CI runs the
 first three seeds, and every threshold leaves room for a bad seed among them.
 
-What we measured differs from the issue's expectation in one place: at
-aliasing 1 on ``nested_loops`` appearance still raises the ground-truth mass,
-because one shared palette does not make a corner look like a straight
-corridor (the walls differ, and so do the Fourier signatures). On
-``short_loop``, whose four places are congruent corners, appearance at
-aliasing 1 does not help, which is what the last test checks.
+Measured with the decor simulator (``GENERATOR_VERSION`` 3): at aliasing 1
+every place carries the same decor and the corridor layout is hidden, so
+appearance stops helping on ``nested_loops`` as on ``short_loop``. These
+configurations sample with plain MCMC (four chains of 3 000 steps), whose
+chains can stick: at aliasing 1 one chain of four often stays in the
+all-in-one-place topology it started from (masses of exactly 0.25 below).
+The sweeps in ``experiments/`` use exact posteriors or tempering instead.
 """
 
 import copy
@@ -79,9 +80,8 @@ def mass(table, variant, aliasing=None):
 def test_unaliased_low_noise_nested_loops_puts_most_mass_on_the_truth(tables):
     """nested_loops, aliasing 0, noise 0.25, odometry + appearance.
 
-    Measured ground-truth mass, seeds 0-7: 1.00 1.00 1.00 1.00 0.00 1.00 1.00 1.00
-    (mean 0.875; on seed 4 the posterior prefers another topology). Threshold: mean over
-    the CI seeds > 0.6 (one such seed among three would still pass if the others are near 1).
+    Measured ground-truth mass, seeds 0-7: 1.00 on every seed (mean 1.000). Threshold: mean over
+    the CI seeds > 0.6 (one bad seed among three would still pass if the others are near 1).
     """
     masses = mass(tables["nested_low_noise"], "odometry+appearance")
     assert masses.mean() > 0.6, masses
@@ -90,34 +90,34 @@ def test_unaliased_low_noise_nested_loops_puts_most_mass_on_the_truth(tables):
 def test_appearance_raises_the_truth_mass_over_odometry_at_moderate_noise(tables):
     """nested_loops, aliasing 0, noise 1.0.
 
-    Measured, seeds 0-7: odometry alone 0.00 0.00 0.00 0.00 0.00 0.00 0.08 0.00 (mean 0.010);
-    odometry + appearance 0.52 0.88 0.58 0.25 0.00 1.00 0.97 0.76 (mean 0.620).
-    Threshold: the mean gain over the CI seeds exceeds 0.3 (measured on seeds 0-2: 0.66).
+    Measured, seeds 0-7: odometry alone 0.00 0.00 0.00 0.46 0.07 0.61 0.21 0.54 (mean 0.236);
+    odometry + appearance 0.99 0.88 1.00 1.00 1.00 1.00 1.00 1.00 (mean 0.984).
+    Threshold: the mean gain over the CI seeds exceeds 0.5 (measured on seeds 0-2: 0.96).
     """
     table = tables["nested_moderate_noise"]
     gain = mass(table, "odometry+appearance", 0.0) - mass(table, "odometry", 0.0)
-    assert gain.mean() > 0.3, gain
+    assert gain.mean() > 0.5, gain
 
 
 def test_aliasing_shrinks_what_appearance_adds(tables):
     """nested_loops, noise 1.0: the gain of appearance at aliasing 1 is below its gain at aliasing 0.
 
-    Measured gains, seeds 0-7: aliasing 0 mean 0.610; aliasing 1 mean 0.254 (0.22 0.17 0.10 0.23
-    0.00 0.42 0.39 0.50). Threshold: mean gain at aliasing 1 < mean gain at aliasing 0 - 0.15
-    (seeds 0-2: 0.16 against 0.66).
+    Measured gains, seeds 0-7: aliasing 0 mean 0.748; aliasing 1 mean -0.078 (0.43 0.32 0.00 -0.26
+    -0.03 -0.49 -0.05 -0.54). Threshold: mean gain at aliasing 1 < mean gain at aliasing 0 - 0.3
+    (seeds 0-2: 0.25 against 0.96).
     """
     table = tables["nested_moderate_noise"]
     gains = {a: (mass(table, "odometry+appearance", a) - mass(table, "odometry", a)).mean() for a in (0.0, 1.0)}
-    assert gains[1.0] < gains[0.0] - 0.15, gains
+    assert gains[1.0] < gains[0.0] - 0.3, gains
 
 
 def test_fully_aliased_appearance_does_not_help_on_congruent_places(tables):
     """short_loop (four congruent corners), aliasing 1, noise 1.0, maximum penalty 50.
 
-    Measured, seeds 0-7: odometry alone 1.00 0.98 1.00 0.98 1.00 0.99 0.98 0.96 (mean 0.986);
-    odometry + appearance 0.00 1.00 1.00 0.98 1.00 0.25 0.50 0.25 (mean 0.622): one shared palette
-    makes appearance mislead the sampler rather than help it. Threshold: odometry + appearance
-    is not above odometry alone by more than 0.05 on average (seeds 0-2: -0.33).
+    Measured, seeds 0-7: odometry alone 0.97 1.00 1.00 0.97 1.00 0.99 0.98 0.96 (mean 0.984);
+    odometry + appearance 0.25 0.00 0.00 0.00 0.00 0.25 0.00 0.00 (mean 0.062): with one shared
+    decor, appearance favours merging and chains stick there rather than being helped. Threshold:
+    odometry + appearance is not above odometry alone by more than 0.05 on average (seeds 0-2: -0.91).
     """
     table = tables["short_loop_aliased"]
     gain = mass(table, "odometry+appearance") - mass(table, "odometry")
