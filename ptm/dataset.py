@@ -22,16 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from ._validation import finite_array
+from .se2 import wrap_angle
 
-__all__ = ["Dataset", "wrap_angle"]
+__all__ = ["Dataset", "wrap_angle"]  # wrap_angle: re-exported from ptm.se2 for older imports
 
 _ARRAY_FIELDS = ("odometry", "odometry_cov", "signatures", "labels", "true_poses", "panoramas")
-
-
-def wrap_angle(angle):
-    """Wrap angles to (-pi, pi]."""
-    wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(wrapped == -np.pi, np.pi, wrapped)
 
 
 @dataclass(frozen=True)
