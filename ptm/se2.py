@@ -48,12 +48,16 @@ def relative_pose(world_T_a, world_T_b) -> np.ndarray:
 def dead_reckoning(increments, start=(0.0, 0.0, 0.0)) -> np.ndarray:
     """(T+1, 3) poses from composing (T, 3) relative increments onto ``start`` (the origin by default).
 
+    Vectorised: the heading before step k is the start heading plus the sum of
+    the earlier turns, so every step is rotated into the world frame at once.
     Headings are accumulated without wrapping, so that they stay continuous
     along the path.
     """
     increments = np.asarray(increments, dtype=float).reshape(-1, 3)
-    poses = np.empty((len(increments) + 1, 3))
-    poses[0] = np.asarray(start, dtype=float)
-    for step, increment in enumerate(increments):
-        poses[step + 1] = compose(poses[step], increment)
-    return poses
+    start = np.asarray(start, dtype=float)
+    headings = start[2] + np.concatenate([[0.0], np.cumsum(increments[:, 2])])
+    cos, sin = np.cos(headings[:-1]), np.sin(headings[:-1])
+    world_steps = np.stack([cos * increments[:, 0] - sin * increments[:, 1],
+                            sin * increments[:, 0] + cos * increments[:, 1]], axis=-1)
+    positions = start[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(world_steps, axis=0)])
+    return np.column_stack([positions, headings])

@@ -20,9 +20,9 @@ import copy
 import numpy as np
 import pytest
 
-from ptm_bench.cell import run_cell
-from ptm_bench.experiment import expand_cells, parse_experiment
-from ptm_bench.sweep import run_sweep
+from ptm_bench.evaluation.cell import run_cell
+from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
+from ptm_bench.evaluation.sweep import run_sweep
 
 SEEDS = [0, 1, 2]
 

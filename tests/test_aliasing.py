@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from ptm_bench.aliasing import signature_auc
-from ptm_bench.generate import generate_dataset
-from ptm_bench.robot import RigConfig
+from ptm_bench.simulation.aliasing import signature_auc
+from ptm_bench.simulation.generate import generate_dataset
+from ptm_bench.simulation.robot import RigConfig
 
 
 def test_auc_by_hand():

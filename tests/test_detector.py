@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ptm_bench.detector import detect
+from ptm_bench.simulation.detector import detect
 
 PLACES = {3: (2.0, 0.3), 7: (5.0, -0.6), 9: (8.0, 2.5)}
 

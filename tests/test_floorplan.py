@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from ptm_bench.floorplan import (
+from ptm_bench.world.floorplan import (
     assign_palettes,
     corridor_grid,
     list_worlds,

@@ -7,9 +7,9 @@ import pytest
 
 import ptm
 from ptm_bench.cli import main
-from ptm_bench.floorplan import corridor_grid, load_world
-from ptm_bench.generate import build_world, generate_dataset, true_odometry
-from ptm_bench.robot import RigConfig
+from ptm_bench.world.floorplan import corridor_grid, load_world
+from ptm_bench.simulation.generate import build_world, generate_dataset, true_odometry
+from ptm_bench.simulation.robot import RigConfig
 
 SMALL = RigConfig(image_height=24, image_width=32)
 REQUIRED_META = ("world", "aliasing", "noise", "seed", "min_place_spacing", "detection_radius", "places",

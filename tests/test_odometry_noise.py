@@ -3,15 +3,13 @@
 import numpy as np
 import pytest
 
-from ptm_bench.odometry_noise import (
+from ptm.se2 import compose, dead_reckoning, relative_pose
+from ptm_bench.simulation.odometry_noise import (
     COVARIANCE_FLOOR,
     OdometryNoise,
     OdometrySteps,
-    compose,
     decompose,
     detection_odometry,
-    integrate,
-    relative_pose,
     sample_odometry,
 )
 
@@ -21,7 +19,7 @@ STEP = np.array([0.05, 0.15, -0.02])  # one control step: rot1 [rad], trans [m],
 def _trajectory(rot1, trans, rot2):
     """True poses (T+1, 3) from per-step (rot1, trans, rot2)."""
     increments = np.stack([trans * np.cos(rot1), trans * np.sin(rot1), rot1 + rot2], axis=-1)
-    return integrate(increments, start=(1.0, -2.0, 0.4))
+    return dead_reckoning(increments, start=(1.0, -2.0, 0.4))
 
 
 def _l_shaped_run(steps=150):
@@ -92,7 +90,7 @@ def test_propagated_covariance_matches_monte_carlo():
     finals = []
     for seed in range(3000):
         steps = sample_odometry(poses, model, np.random.default_rng(seed))
-        finals.append(relative_pose(integrate(steps.increments)[0], integrate(steps.increments)[-1]))
+        finals.append(relative_pose(dead_reckoning(steps.increments)[0], dead_reckoning(steps.increments)[-1]))
     finals = np.array(finals)
     truth = relative_pose(poses[0], poses[-1])
     empirical = np.cov((finals - truth).T)

@@ -19,10 +19,13 @@ import numpy as np
 import pytest
 
 import ptm
-from ptm_bench import calibration, datacache, experiment, generate
-from ptm_bench import cell as cell_module
-from ptm_bench.cell import build_posterior, run_cell
-from ptm_bench.floorplan import WORLDS_DIR
+from ptm_bench.evaluation import calibration
+from ptm_bench.evaluation import datacache
+from ptm_bench.evaluation import experiment
+from ptm_bench.simulation import generate
+from ptm_bench.evaluation import cell as cell_module
+from ptm_bench.evaluation.cell import build_posterior, run_cell
+from ptm_bench.world.floorplan import WORLDS_DIR
 
 CORNERS = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
 LOOP_LABELS = np.array([0, 1, 2, 3, 0, 1, 2, 3, 0])
@@ -187,7 +190,7 @@ def test_the_cache_key_follows_the_world_content_and_the_simulator_version(tmp_p
     assert before["file"].name.startswith("loop_a0_n1_s3_")
     assert key(str(edited_world(tmp_path, radius="0.4"))) != before["file"]
     assert key({**GRID, "loops": 2}) != before["grid"]
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.generate/test")
+    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.simulation.generate/test")
     assert key("short_loop") != before["preset"]
     assert key(str(edited_world(tmp_path))) != before["file"]
     assert key(GRID) != before["grid"]
@@ -205,10 +208,10 @@ def test_a_cell_definition_follows_the_world_content_and_the_simulator_version(t
     edited_world(tmp_path, radius="0.4")
     after_edit = definitions()
     assert after_edit[:2] != before[:2] and after_edit[2:] == before[2:]  # only the cells of the edited world
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.generate/test")
+    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.simulation.generate/test")
     after_bump = definitions()
     assert all(new != old for new, old in zip(after_bump, after_edit))
-    monkeypatch.setattr(cell_module, "CELL_VERSION", "ptm_bench.cell/test")  # the rules turning a dataset into a row
+    monkeypatch.setattr(cell_module, "CELL_VERSION", "ptm_bench.evaluation.cell/test")  # the rules turning a dataset into a row
     assert all(new != old for new, old in zip(definitions(), after_bump))
 
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from ptm.features import fourier_signature
-from ptm_bench.floorplan import ROBOT_CLEARANCE, load_world
-from ptm_bench.generate import build_world
-from ptm_bench.panorama import CylindricalStitcher, add_pixel_noise
-from ptm_bench.robot import Rig, RigConfig
-from ptm_bench.scene import NEAR_PLANE
+from ptm_bench.world.floorplan import ROBOT_CLEARANCE, load_world
+from ptm_bench.simulation.generate import build_world
+from ptm_bench.simulation.panorama import CylindricalStitcher, add_pixel_noise
+from ptm_bench.simulation.robot import Rig, RigConfig
+from ptm_bench.simulation.scene import NEAR_PLANE
 
 SMALL = RigConfig(image_height=24, image_width=32)
 
@@ -84,9 +84,9 @@ def test_pixel_noise_has_the_requested_spread():
 def test_mujoco_imported_first_without_mujoco_gl_gets_a_clear_error():
     program = (
         "import mujoco\n"
-        "from ptm_bench.floorplan import load_world\n"
-        "from ptm_bench.generate import build_world\n"
-        "from ptm_bench.robot import Rig, RigConfig\n"
+        "from ptm_bench.world.floorplan import load_world\n"
+        "from ptm_bench.simulation.generate import build_world\n"
+        "from ptm_bench.simulation.robot import Rig, RigConfig\n"
         "import numpy as np\n"
         "model, _, _ = build_world(load_world('short_loop'), 0.0, np.random.default_rng(0))\n"
         "Rig(model, RigConfig())\n"

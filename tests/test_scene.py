@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from ptm_bench.floorplan import corridor_grid, list_worlds, load_world, palette_library, parse_floorplan
-from ptm_bench.robot import ControllerConfig, RigConfig, base_pose, drive, place_base
-from ptm_bench.scene import build_mjcf, compile_scene, place_sites
+from ptm_bench.world.floorplan import corridor_grid, list_worlds, load_world, palette_library, parse_floorplan
+from ptm_bench.simulation.robot import ControllerConfig, RigConfig, base_pose, drive, place_base
+from ptm_bench.simulation.scene import build_mjcf, compile_scene, place_sites
 
 import mujoco  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Scoring metrics on hand-made partitions with answers worked out by hand (ptm_bench.scoring)."""
+"""Scoring metrics on hand-made partitions with answers worked out by hand (ptm_bench.evaluation.scoring)."""
 
 import json
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ptm.partitions import canonical
-from ptm_bench import scoring
+from ptm_bench.evaluation import scoring
 
 
 def test_adjusted_rand_index_matches_hand_computation():
@@ -237,12 +237,13 @@ def test_pooled_reliability_skips_missing_tables_and_refuses_mismatched_ones():
 # -- baselines -------------------------------------------------------------------------------
 
 from ptm import Dataset  # noqa: E402
-from ptm_bench import baselines  # noqa: E402
+from ptm.se2 import dead_reckoning  # noqa: E402
+from ptm_bench.evaluation import baselines  # noqa: E402
 
 
 def test_dead_reckoning_composes_increments_on_se2():
     # Forward 1 m, turn left 90 degrees, forward 1 m: ends at (1, 1) facing +y.
-    poses = baselines.dead_reckoning([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]])
+    poses = dead_reckoning([[1.0, 0.0, np.pi / 2], [1.0, 0.0, 0.0]])
     np.testing.assert_allclose(poses[-1], [1.0, 1.0, np.pi / 2], atol=1e-12)
 
 

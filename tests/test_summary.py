@@ -1,6 +1,6 @@
 """The summary of a sweep: only the current config's cells, pooled calibration, measured aliasing, provenance.
 
-Tables here are built from hand-made distributions scored by :func:`ptm_bench.scoring.score`
+Tables here are built from hand-made distributions scored by :func:`ptm_bench.evaluation.scoring.score`
 and the dataset of the per-seed figures is a tiny synthetic one, so no simulation runs.
 """
 
@@ -13,8 +13,10 @@ import pytest
 
 from ptm import Dataset
 from ptm.partitions import canonical
-from ptm_bench import plots, scoring, summary
-from ptm_bench.experiment import expand_cells, parse_experiment
+from ptm_bench.reporting import plots
+from ptm_bench.evaluation import scoring
+from ptm_bench.reporting import summary
+from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
 
 CONFIG = {
     "name": "tiny",

@@ -1,4 +1,4 @@
-"""The sweep engine: resume, errors, killed workers, and local vs Dask tables (ptm_bench.sweep).
+"""The sweep engine: resume, errors, killed workers, and local vs Dask tables (ptm_bench.evaluation.sweep).
 
 Cells here score a tiny synthetic appearance-only dataset built with numpy, so
 the engine is exercised end to end without the simulator.
@@ -12,7 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ptm_bench import scoring, sweep
+from ptm_bench.evaluation import scoring
+
+from ptm_bench.evaluation import sweep
 
 
 def synthetic_cell(cell: dict) -> dict:
@@ -156,7 +158,7 @@ def test_local_and_dask_local_cluster_give_identical_tables(tmp_path):
 
 # -- experiment configs ----------------------------------------------------------------------
 
-from ptm_bench import experiment  # noqa: E402
+from ptm_bench.evaluation import experiment  # noqa: E402
 
 MINIMAL_CONFIG = """
 name = "tiny"
@@ -224,8 +226,8 @@ def test_bad_configs_are_refused_with_the_offending_name(tmp_path, bad, message)
 
 # -- cells end to end, on the simulator's short loop --------------------------------------------
 
-from ptm_bench.cell import run_cell  # noqa: E402
-from ptm_bench.summary import write_summary  # noqa: E402
+from ptm_bench.evaluation.cell import run_cell  # noqa: E402
+from ptm_bench.reporting.summary import write_summary  # noqa: E402
 
 
 END_TO_END_CONFIG = """

@@ -3,7 +3,7 @@
 * ``sweep_overhead_per_cell`` — wall time per cell of a sweep whose cells do
   nothing (forking a process, collecting the row, rewriting ``cells.csv``),
   with two local workers;
-* ``score_time`` — :func:`ptm_bench.scoring.score` of a histogram over
+* ``score_time`` — :func:`ptm_bench.evaluation.scoring.score` of a histogram over
   ``n_topologies`` random partitions of N = 12 detections;
 * ``demo_cell_wall`` — one ``nested_loops`` cell of the demo config
   (odometry + appearance, datasets cached), end to end.
@@ -21,11 +21,10 @@ import numpy as np
 
 from ptm.partitions import canonical
 
-from . import scoring
-from .cell import run_cell
-from .demo import DEMO_CONFIG
-from .experiment import expand_cells, parse_experiment
-from .sweep import run_sweep
+from ptm_bench.evaluation import scoring
+from ptm_bench.evaluation.cell import run_cell
+from ptm_bench.evaluation.experiment import DEMO_CONFIG, expand_cells, parse_experiment
+from ptm_bench.evaluation.sweep import run_sweep
 
 __all__ = ["evaluation_rows"]
 

@@ -20,10 +20,10 @@ import time
 
 import numpy as np
 
-from .floorplan import list_worlds, load_world
-from .generate import build_world, generate_dataset
-from .panorama import CylindricalStitcher
-from .robot import CAMERA_COUNT, Rig, RigConfig
+from ptm_bench.simulation.generate import build_world, generate_dataset
+from ptm_bench.simulation.panorama import CylindricalStitcher
+from ptm_bench.simulation.robot import CAMERA_COUNT, Rig, RigConfig
+from ptm_bench.world.floorplan import list_worlds, load_world
 
 __all__ = ["simulator_rows"]
 

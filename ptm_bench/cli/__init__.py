@@ -15,12 +15,12 @@ import sys
 
 # Modules that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
-    "ptm_bench.demo",
-    "ptm_bench.run_cli",
-    "ptm_bench.appearance_check",
-    "ptm_bench.speed",
-    "ptm_bench.worlds_cli",
-    "ptm_bench.generate",
+    "ptm_bench.cli.demo",
+    "ptm_bench.cli.run",
+    "ptm_bench.cli.appearance_check",
+    "ptm_bench.cli.speed",
+    "ptm_bench.cli.worlds",
+    "ptm_bench.cli.generate",
 )
 
 

@@ -7,7 +7,7 @@ sampled with odometry alone and with odometry plus appearance, the two
 threshold baselines are run, every answer is scored against the ground truth
 (SPEC §6), and the scores, the parameters' sources, the top topologies and
 the figures are written to ``results/demo/``. Each cell is a sweep cell
-(:func:`ptm_bench.cell.run_cell`), so the demo follows the same rules: every
+(:func:`ptm_bench.evaluation.cell.run_cell`), so the demo follows the same rules: every
 parameter is configured, a sensor specification, or calibrated on the two
 held-out runs, never read from the scored run's ground truth. It is the
 experiment machinery of ``ptm-bench run`` on the embedded config
@@ -25,25 +25,11 @@ import json
 import time
 from pathlib import Path
 
-from .cell import run_cell
-from .experiment import expand_cells, parse_experiment
-from .plots import topology_string
-from .summary import write_summary
-from .sweep import run_sweep
-
-#: The embedded experiment: one world, one seed, two calibration seeds, two models, two baselines.
-DEMO_CONFIG = {
-    "name": "demo",
-    "description": "ptm-bench demo: one simulated run, inference with and without appearance, scored.",
-    "baselines": ["greedy_odometry", "appearance_threshold"],
-    "sweep": {"worlds": ["nested_loops"], "aliasing": [0.0], "noise": [1.0], "seeds": [0],
-              "calibration_seeds": [1000, 1001]},
-    "inference": {"n_samples": 10000, "burn_in": 1000, "chains": 4},
-    "variants": [
-        {"name": "odometry", "models": ["odometry"]},
-        {"name": "odometry+appearance", "models": ["odometry", "appearance"]},
-    ],
-}
+from ptm_bench.evaluation.cell import run_cell
+from ptm_bench.evaluation.experiment import DEMO_CONFIG, expand_cells, parse_experiment
+from ptm_bench.evaluation.sweep import run_sweep
+from ptm_bench.reporting.plots import topology_string
+from ptm_bench.reporting.summary import write_summary
 
 
 def register(subparsers) -> None:

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .cell import run_cell
-from .experiment import describe, expand_cells, load_experiment
-from .summary import aggregate, current_rows, markdown_table, write_summary
-from .sweep import run_sweep
+from ptm_bench.evaluation.cell import run_cell
+from ptm_bench.evaluation.experiment import describe, expand_cells, load_experiment
+from ptm_bench.evaluation.sweep import run_sweep
+from ptm_bench.reporting.summary import aggregate, current_rows, markdown_table, write_summary
 
 SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
 

@@ -20,53 +20,17 @@ from __future__ import annotations
 
 import importlib
 import platform
-import time
 from pathlib import Path
 
-import numpy as np
-
-import ptm
 from ptm.dataset import atomic_write
 
 # section name -> "module:function"; each function takes the parsed args and returns row dicts.
 SECTIONS = {
-    "core": "ptm_bench.speed:core_rows",
-    "simulator": "ptm_bench.bench_simulator:simulator_rows",
-    "odometry": "ptm_bench.bench_odometry:odometry_rows",
-    "evaluation": "ptm_bench.bench_evaluation:evaluation_rows",
+    "core": "ptm_bench.benchmarks.core:core_rows",
+    "simulator": "ptm_bench.benchmarks.simulator:simulator_rows",
+    "odometry": "ptm_bench.benchmarks.odometry:odometry_rows",
+    "evaluation": "ptm_bench.benchmarks.evaluation:evaluation_rows",
 }
-
-
-def synthetic_appearance_posterior(n: int, k: int = 5, seed: int = 0) -> ptm.Posterior:
-    """An appearance-only posterior over N detections of about N/3 places (K components)."""
-    rng = np.random.default_rng(seed)
-    places = max(1, n // 3)
-    labels = rng.integers(0, places, size=n)
-    centres = rng.uniform(0.05, 0.5, size=(places, k))
-    signatures = np.abs(centres[labels] + rng.normal(0.0, 0.01, size=(n, k)))
-    dataset = ptm.Dataset(signatures=signatures, labels=labels)
-    model = ptm.AppearanceModel(mu=0.25, kappa=0.1, alpha=3.0, beta=2.0 * 0.01 ** 2)
-    return ptm.Posterior(dataset, ptm.PoissonPrior(rate=float(places)), [model])
-
-
-def core_rows(args) -> list[dict]:
-    rows = []
-    steps = max(1000, int(20_000 * args.scale))
-    for n in (10, 50, 100):
-        for label, moves in (("split_merge", [ptm.moves.SplitMerge()]), ("default_moves", None)):
-            posterior = synthetic_appearance_posterior(n)
-            ptm.mcmc(posterior, 500, seed=0, moves=moves)  # warm the per-set memo
-            started = time.perf_counter()
-            ptm.mcmc(posterior, steps, seed=1, moves=moves)
-            rate = steps / (time.perf_counter() - started)
-            rows.append({"section": "core", "metric": f"mh_steps_per_s_appearance_{label}", "n": n,
-                         "value": rate, "unit": "steps/s"})
-    posterior = synthetic_appearance_posterior(10)
-    started = time.perf_counter()
-    ptm.exact_posterior(posterior)
-    rows.append({"section": "core", "metric": "exact_enumeration_time", "n": 10,
-                 "value": time.perf_counter() - started, "unit": "s"})
-    return rows
 
 
 def _section_function(name: str):
@@ -103,7 +67,7 @@ def run(args) -> int:
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("speed", help="throughput benchmarks -> results/speed.csv")
-    parser.add_argument("--section", action="append", help=f"section to run (repeatable); default all")
+    parser.add_argument("--section", action="append", help="section to run (repeatable); default all")
     parser.add_argument("--out", default="results", help="folder for speed.csv (default: results)")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="multiply the work per measurement (smaller = faster, noisier)")

@@ -27,7 +27,6 @@ the same runs. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -35,11 +34,9 @@ from scipy import stats
 
 import ptm
 
-from ptm.dataset import atomic_write
+from ptm_bench.evaluation.datacache import dataset_for
 
-from .datacache import dataset_for
-
-__all__ = ["APPEARANCE_MODELS", "DEFAULT_WORLDS", "PIT_BINS", "predictive_check", "register", "write_report"]
+__all__ = ["APPEARANCE_MODELS", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
 
 #: The models checked: name -> how to fit it on labelled calibration datasets.
 APPEARANCE_MODELS = {
@@ -118,71 +115,3 @@ def _check(model, datasets) -> tuple[dict, np.ndarray]:
         row[f"extreme_share_{component}"] = float(np.mean(two_sided[:, component] < EXTREME_P))
         row[f"ks_p_{component}"] = float(stats.kstest(pits[:, component], "uniform").pvalue)
     return row, pits
-
-
-def write_report(table: pd.DataFrame, pit: pd.DataFrame, out: Path) -> Path:
-    """``checks.csv``, ``pit.csv``, ``pit.png`` and ``summary.md`` in ``out``."""
-    from . import plots
-    from .summary import markdown_table
-
-    out.mkdir(parents=True, exist_ok=True)
-    for name, frame in (("checks.csv", table), ("pit.csv", pit)):
-        atomic_write(out / name, lambda handle, frame=frame: handle.write(frame.to_csv(index=False).encode()))
-    figure = plots.pit_histograms(pit, out / "pit.png", bins=PIT_BINS)
-    shown = table[["world", "model", "runs", "calibration_runs", "aliasing_auc", "revisit_pairs",
-                   "revisits_favouring_split", "different_pairs", "different_favouring_merge",
-                   "held_out_visits", "extreme_share_max"]]
-    ks = table[["world", "model", *[c for c in table.columns if c.startswith("ks_p_")]]]
-    lines = [
-        "# Appearance predictive check",
-        "",
-        "Each model is fitted by empirical Bayes on the calibration runs (seeds 1000..) and checked on held-out "
-        "runs (seeds 0..) at the same condition. `revisits_favouring_split`: share of same-place detection pairs "
-        "whose appearance Bayes factor favours two places (target <= 0.02); `different_favouring_merge`: share of "
-        "different-place pairs whose Bayes factor favours one place (target <= 0.02); `extreme_share_max`: the "
-        f"largest share, over signature components, of held-out revisits whose two-sided predictive p-value is "
-        f"below {EXTREME_P:g} (expected {EXTREME_P:g}); `aliasing_auc`: mean measured aliasing of the held-out runs.",
-        "",
-        markdown_table(shown),
-        "",
-        "Kolmogorov-Smirnov p-values of each component's PIT values against the uniform:",
-        "",
-        markdown_table(ks),
-        "",
-        f"![PIT histograms]({figure.name})",
-        "",
-        "*Probability integral transform of each held-out revisit under the posterior predictive given the other "
-        "visits of its place, per component (flat = calibrated; U-shaped = overconfident).*",
-        "",
-    ]
-    summary = out / "summary.md"
-    atomic_write(summary, lambda handle: handle.write("\n".join(lines).encode()))
-    return summary
-
-
-# -- command line ---------------------------------------------------------------------------------
-
-
-def register(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "appearance-check",
-        help="predictive check of the appearance models on held-out simulated runs",
-        description="Fit the joint and the independent appearance models on calibration runs and report how "
-                    "often they are fooled on held-out runs (Bayes factors of pairs, PIT of revisits).",
-    )
-    parser.add_argument("--worlds", nargs="+", default=list(DEFAULT_WORLDS), choices=list(DEFAULT_WORLDS),
-                        help="worlds to check (default: all)")
-    parser.add_argument("--runs", type=int, default=30, help="held-out runs per world (default 30)")
-    parser.add_argument("--calibration-runs", type=int, default=10, help="calibration runs per world (default 10)")
-    parser.add_argument("--out", type=Path, default=Path("results/appearance_check"), help="output folder")
-    parser.set_defaults(handler=_run)
-
-
-def _run(args) -> int:
-    worlds = {name: DEFAULT_WORLDS[name] for name in args.worlds}
-    table, pit = predictive_check(worlds, args.runs, args.calibration_runs, cache_dir=args.out / "datasets")
-    summary = write_report(table, pit, args.out)
-    columns = ["world", "model", "revisits_favouring_split", "different_favouring_merge", "extreme_share_max"]
-    print(table[columns].to_string(index=False, float_format=lambda v: f"{v:.3f}"))
-    print(f"wrote {summary}")
-    return 0

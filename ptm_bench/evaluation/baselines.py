@@ -27,23 +27,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ptm.partitions import canonical
+from ptm.se2 import dead_reckoning
 
-from .scoring import adjusted_rand_index
+from ptm_bench.evaluation.scoring import adjusted_rand_index
 
-__all__ = ["BASELINE_FEATURES", "dead_reckoning", "fit_threshold", "greedy_threshold_labels"]
+__all__ = ["BASELINE_FEATURES", "fit_threshold", "greedy_threshold_labels"]
 
 _MAX_CANDIDATES = 64
-
-
-def dead_reckoning(odometry) -> np.ndarray:
-    """(N, 3) poses (x, y, theta) from composing the (N-1, 3) relative odometry from the origin."""
-    odometry = np.asarray(odometry, dtype=float).reshape(-1, 3)
-    poses = np.zeros((len(odometry) + 1, 3))
-    for step, (dx, dy, dtheta) in enumerate(odometry):
-        x, y, theta = poses[step]
-        cos, sin = np.cos(theta), np.sin(theta)
-        poses[step + 1] = (x + cos * dx - sin * dy, y + sin * dx + cos * dy, theta + dtheta)
-    return poses
 
 
 def _positions(dataset) -> np.ndarray:

@@ -38,7 +38,7 @@ The calibrated ones:
   the held-out runs' true partitions (``ptm.AppearanceModel.fit``).
 
 Each function returns ``(value, source)``: the number and a one-line
-provenance that :mod:`ptm_bench.cell` records as the ``source_<parameter>``
+provenance that :mod:`ptm_bench.evaluation.cell` records as the ``source_<parameter>``
 column.
 
     >>> held_out = calibration_datasets(cell)
@@ -56,7 +56,7 @@ import numpy as np
 
 import ptm
 
-from .datacache import dataset_for
+from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
            "prior_rate", "topology_sigma"]

@@ -1,7 +1,7 @@
 """One sweep cell: a dataset, a model variant or baseline, inference, and its scores (SPEC §6).
 
-:func:`run_cell` takes a cell from :func:`ptm_bench.experiment.expand_cells`
-and returns its table row: the scores of :func:`ptm_bench.scoring.score`,
+:func:`run_cell` takes a cell from :func:`ptm_bench.evaluation.experiment.expand_cells`
+and returns its table row: the scores of :func:`ptm_bench.evaluation.scoring.score`,
 the sampler diagnostics, the parameters the posterior used with the source
 of each (``source_<parameter>``: the config, a sensor specification, or a
 calibration on held-out runs — never the scored run's ground truth), the
@@ -32,17 +32,23 @@ import numpy as np
 
 import ptm
 
-from . import scoring
-from .baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
-from .calibration import calibration_datasets, fitted_appearance, penalty_radius, prior_rate, topology_sigma
-from .datacache import dataset_for
+from ptm_bench.evaluation import scoring
+from ptm_bench.evaluation.baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
+from ptm_bench.evaluation.calibration import (
+    calibration_datasets,
+    fitted_appearance,
+    penalty_radius,
+    prior_rate,
+    topology_sigma,
+)
+from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior"]
 
-#: Version of the rules by which a cell computes its row (this file, ptm_bench.calibration, ptm_bench.scoring).
+#: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
 #: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
 #: change, and a rerun of a sweep recomputes its cells instead of reusing their rows.
-CELL_VERSION = "ptm_bench.cell/2"
+CELL_VERSION = "ptm_bench.evaluation.cell/2"
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000
@@ -89,7 +95,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
     Only what a user of a real robot has is read from ``dataset``: its odometry,
     signatures, number of detections and the detector's radius (a sensor
     specification). Never its labels, true poses, or the world's places: the
-    rest is configured or calibrated on the held-out runs (:mod:`ptm_bench.calibration`).
+    rest is configured or calibrated on the held-out runs (:mod:`ptm_bench.evaluation.calibration`).
     For each parameter ``p`` the returned dict holds its value ``p`` and its provenance ``source_p``.
     """
     settings, models, used = cell["settings"], [], {}

@@ -4,12 +4,12 @@ A dataset is identified by (world, aliasing, noise, seed, generator options,
 number of Fourier components) and by what the simulator makes of them: the
 world's *content* and the simulator's version. :func:`world_identity` gives
 both: for a preset name or a floor ``.toml`` path, the SHA-256 of the file's
-bytes (resolved as ``ptm_bench.floorplan.load_world`` resolves it); for a
+bytes (resolved as ``ptm_bench.world.floorplan.load_world`` resolves it); for a
 procedural world, the generator table itself; and for either,
-``ptm_bench.generate.GENERATOR_VERSION`` (bumped whenever a change to the
+``ptm_bench.simulation.generate.GENERATOR_VERSION`` (bumped whenever a change to the
 simulator changes the datasets it writes). Editing a world file or bumping
 the version therefore gives a new cache file, and — since
-``ptm_bench.experiment`` puts the same identity into every cell's definition
+``ptm_bench.evaluation.experiment`` puts the same identity into every cell's definition
 digest — recomputes the sweep cells that used the old one.
 
 The simulator is deterministic in these (SPEC §5), so a cached file is
@@ -38,7 +38,7 @@ __all__ = ["dataset_for", "dataset_path", "resolve_world", "simulator_version", 
 
 def resolve_world(world_spec, seed: int):
     """A ``Floorplan``: a preset or file by name, or a procedural corridor grid (world seed = ``seed`` unless given)."""
-    from . import floorplan
+    from ptm_bench.world import floorplan
 
     if isinstance(world_spec, str):
         return floorplan.load_world(world_spec)
@@ -48,9 +48,9 @@ def resolve_world(world_spec, seed: int):
 
 
 def simulator_version() -> str:
-    """``ptm_bench.generate.GENERATOR_VERSION``: the version of the simulator that writes the datasets."""
+    """``ptm_bench.simulation.generate.GENERATOR_VERSION``: the version of the simulator that writes the datasets."""
     # Imported here, not at the top: generate imports MuJoCo, which parsing configs does not need.
-    from . import generate
+    from ptm_bench.simulation import generate
 
     return generate.GENERATOR_VERSION
 
@@ -65,7 +65,7 @@ def world_identity(world_spec) -> dict:
     """
     identity = {"world": world_spec, "simulator": simulator_version()}
     if isinstance(world_spec, str):
-        from .floorplan import load_world
+        from ptm_bench.world.floorplan import load_world
 
         source = Path(load_world(world_spec).source)  # the file floorplan's own lookup reads
         identity["world_sha256"] = hashlib.sha256(source.read_bytes()).hexdigest()
@@ -94,7 +94,7 @@ def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_
     if path is not None and path.is_file():
         return ptm.Dataset.load(path)
 
-    from .generate import generate_dataset
+    from ptm_bench.simulation.generate import generate_dataset
 
     if components is not None:
         generator_options["signature_k"] = int(components)

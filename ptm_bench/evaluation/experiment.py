@@ -5,8 +5,8 @@ separate calibration seeds, the inference settings, and the model variants
 to compare; :func:`load_experiment` validates it (an unknown key, world,
 model or baseline raises ``ValueError`` naming it) and :func:`expand_cells`
 crosses worlds x aliasing x noise x seeds x (variants + baselines) into the
-cells that :func:`ptm_bench.sweep.run_sweep` runs with
-:func:`ptm_bench.cell.run_cell`. The format, with every key and its default,
+cells that :func:`ptm_bench.evaluation.sweep.run_sweep` runs with
+:func:`ptm_bench.evaluation.cell.run_cell`. The format, with every key and its default,
 is :data:`DEFAULTS`; a variant may override any key of ``[inference]``,
 ``[odometry]`` and ``[appearance]``::
 
@@ -34,7 +34,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["DEFAULTS", "MODEL_NAMES", "BASELINE_NAMES", "Experiment", "describe", "expand_cells", "load_experiment",
+__all__ = ["DEFAULTS", "DEMO_CONFIG", "MODEL_NAMES", "BASELINE_NAMES", "Experiment", "describe", "expand_cells", "load_experiment",
            "parse_experiment"]
 
 MODEL_NAMES = ("odometry", "appearance")
@@ -48,12 +48,12 @@ WORLD_GENERATORS = ("corridor_grid",)
 #: ``sweep.worlds`` and ``sweep.seeds``, and "choose automatically" elsewhere.
 DEFAULTS = {
     "sweep": {
-        "worlds": None,  # names from ptm_bench.floorplan.list_worlds(), or {generator = "corridor_grid", ...} tables
+        "worlds": None,  # names from ptm_bench.world.floorplan.list_worlds(), or {generator = "corridor_grid", ...} tables
         "aliasing": [0.0],
         "noise": [1.0],
         "seeds": None,
         "calibration_seeds": [1000, 1001, 1002],
-        "generator_options": {},  # extra keyword arguments of ptm_bench.generate.generate_dataset
+        "generator_options": {},  # extra keyword arguments of ptm_bench.simulation.generate.generate_dataset
     },
     "inference": {
         "method": "mcmc",
@@ -206,14 +206,14 @@ def _definition(cell: dict) -> str:
 
     Its config (everything in the cell but where its datasets are cached), the
     world's content and the simulator's version
-    (:func:`ptm_bench.datacache.world_identity`: edit a world file or bump
+    (:func:`ptm_bench.evaluation.datacache.world_identity`: edit a world file or bump
     ``GENERATOR_VERSION`` and the cell is recomputed on the next run), and
-    :data:`ptm_bench.cell.CELL_VERSION`, the version of the rules that turn a
+    :data:`ptm_bench.evaluation.cell.CELL_VERSION`, the version of the rules that turn a
     dataset into a row.
     """
     # Imported here: both pull in the simulator or the inference package, which parsing configs does not need.
-    from .cell import CELL_VERSION
-    from .datacache import world_identity
+    from ptm_bench.evaluation.cell import CELL_VERSION
+    from ptm_bench.evaluation.datacache import world_identity
 
     decisive = {**cell, "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
                 "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": CELL_VERSION}
@@ -258,7 +258,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
 
 def _validated_world(world, source: str):
     if isinstance(world, str):
-        from .floorplan import list_worlds  # imported late: the simulator is optional for parsing tests
+        from ptm_bench.world.floorplan import list_worlds  # imported late: the simulator is optional for parsing tests
 
         known = list_worlds()
         if world not in known and not Path(world).suffix == ".toml":
@@ -314,3 +314,18 @@ def describe(experiment: Experiment) -> str:
     return (f"{experiment.name}: {count} cells = {len(sweep['worlds'])} world(s) x {len(sweep['aliasing'])} aliasing "
             f"x {len(sweep['noise'])} noise x {len(sweep['seeds'])} seeds x {runs} variants/baselines "
             f"({json.dumps([variant['name'] for variant in experiment.variants] + list(experiment.baselines))})")
+
+
+#: The embedded experiment: one world, one seed, two calibration seeds, two models, two baselines.
+DEMO_CONFIG = {
+    "name": "demo",
+    "description": "ptm-bench demo: one simulated run, inference with and without appearance, scored.",
+    "baselines": ["greedy_odometry", "appearance_threshold"],
+    "sweep": {"worlds": ["nested_loops"], "aliasing": [0.0], "noise": [1.0], "seeds": [0],
+              "calibration_seeds": [1000, 1001]},
+    "inference": {"n_samples": 10000, "burn_in": 1000, "chains": 4},
+    "variants": [
+        {"name": "odometry", "models": ["odometry"]},
+        {"name": "odometry+appearance", "models": ["odometry", "appearance"]},
+    ],
+}

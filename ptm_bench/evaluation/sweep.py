@@ -11,7 +11,7 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   that were running, and a rerun skips every cell already in the table
   (``retry_failed=True`` reruns the ones that ended in an error).
 * A cell may carry a plain ``"definition"`` value, a digest of everything
-  of its config (``ptm_bench.experiment.expand_cells`` makes one from the
+  of its config (``ptm_bench.evaluation.experiment.expand_cells`` makes one from the
   settings, calibration seeds and generator options). A row is
   reused only while its definition matches: edit a config and the cells it
   changes are recomputed, the rest are not. Rows of a table written before
@@ -59,7 +59,7 @@ TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|_ms|_ms_mean|attempts)$")
 
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 _BOOKKEEPING_COLUMNS = ("status", "error", "attempts")  # written last, after the cell's values and results
-_PRELOADED_MODULES = ["numpy", "scipy.optimize", "pandas", "ptm", "ptm_bench.cell"]
+_PRELOADED_MODULES = ["numpy", "scipy.optimize", "pandas", "ptm", "ptm_bench.evaluation.cell"]
 
 CellFn = Callable[[dict], dict]
 

@@ -11,7 +11,7 @@
   its mean AUC over the distinct datasets, e.g. "0.5 (AUC 0.81)".
 * :func:`reliability_diagram` — per variant, the observed frequency of "same
   place" against the mean predicted co-assignment probability in each bin of a
-  pooled reliability table (:func:`ptm_bench.scoring.reliability_table`), the
+  pooled reliability table (:func:`ptm_bench.evaluation.scoring.reliability_table`), the
   diagonal for reference, and the pairs per bin in a lower panel.
 * :func:`sampler_traces` — log P(T | Z) and the number of places along each chain.
 * :func:`pit_histograms` — per world and appearance model, the histogram of the
@@ -27,21 +27,19 @@
 from __future__ import annotations
 
 import textwrap
-
 from pathlib import Path
 
 import matplotlib
+import matplotlib.patches
+import matplotlib.ticker
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
-import numpy as np  # noqa: E402
+from ptm.dataset import atomic_write
+from ptm.se2 import dead_reckoning
 
-from ptm.dataset import atomic_write  # noqa: E402
 
-from .baselines import dead_reckoning  # noqa: E402
-
-__all__ = ["mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string",
+__all__ = ["dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string",
            "trajectories"]
 
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
@@ -54,7 +52,7 @@ def topology_string(labels) -> str:
         return "".join(_DIGITS[label] for label in labels)
     return ",".join(str(label) for label in labels)
 
-_PLACE_COLOURS = plt.get_cmap("tab20")
+_PLACE_COLOURS = matplotlib.colormaps["tab20"]
 
 
 def _save(figure, path: Path, tight: bool = True) -> Path:
@@ -63,19 +61,30 @@ def _save(figure, path: Path, tight: bool = True) -> Path:
     if tight:  # not with a colorbar shared by several panels, which tight_layout cannot place
         figure.tight_layout()
     atomic_write(path, lambda handle: figure.savefig(handle, format="png", dpi=110))
-    plt.close(figure)
     return path
 
 
-def trajectories(dataset, path: Path, title: str = "") -> Path:
-    """True and dead-reckoned detection positions, numbered in time order and coloured by true place."""
-    figure, axes = plt.subplots(figsize=(6.5, 5))
+def _draw_detections(axes, dataset) -> None:
+    """True and dead-reckoned detection positions on ``axes``: numbered in time order, coloured by true place.
+
+    The odometry is composed from the first true pose when the dataset has
+    true poses (so both paths start together), else from the origin; the
+    world's places, when the dataset's metadata lists them, are drawn as
+    detection-radius discs.
+    """
     labels = np.asarray(dataset.labels) if dataset.labels is not None else np.zeros(dataset.n, dtype=int)
+    radius = dataset.meta.get("detection_radius", 1.0)
+    for place_id, (x, y) in dataset.meta.get("places", {}).items():
+        axes.add_patch(matplotlib.patches.Circle((x, y), radius, color="0.9", zorder=0))
+        axes.annotate(f"place {place_id}", (x, y), textcoords="offset points", xytext=(0, -14), ha="center",
+                      fontsize=6, color="0.5")
     paths = []
+    start = (0.0, 0.0, 0.0)
     if dataset.true_poses is not None:
         paths.append(("true", dataset.true_poses[:, :2], "-", "o"))
+        start = dataset.true_poses[0]
     if dataset.odometry is not None:
-        paths.append(("odometry (dead reckoning)", dead_reckoning(dataset.odometry)[:, :2], "--", "s"))
+        paths.append(("odometry (dead reckoning)", dead_reckoning(dataset.odometry, start)[:, :2], "--", "s"))
     for name, points, style, marker in paths:
         axes.plot(points[:, 0], points[:, 1], style, color="0.6", lw=1, label=name, zorder=1)
         axes.scatter(points[:, 0], points[:, 1], c=[_PLACE_COLOURS(label % 20) for label in labels],
@@ -85,9 +94,39 @@ def trajectories(dataset, path: Path, title: str = "") -> Path:
     axes.set_aspect("equal", adjustable="datalim")
     axes.set_xlabel("x [m]")
     axes.set_ylabel("y [m]")
-    axes.set_title(title or "detections (colour = true place, number = time order)")
     axes.legend(loc="best", fontsize=8)
+
+
+def trajectories(dataset, path: Path, title: str = "") -> Path:
+    """True and dead-reckoned detection positions, numbered in time order and coloured by true place."""
+    figure = Figure(figsize=(6.5, 5))
+    axes = figure.subplots()
+    _draw_detections(axes, dataset)
+    axes.set_title(title or "detections (colour = true place, number = time order)")
     return _save(figure, path)
+
+
+def dataset_overview(dataset, path: Path) -> Path:
+    """``ptm-bench show``: the detections of :func:`trajectories`, and the panorama strip when the file has one."""
+    has_panoramas = dataset.panoramas is not None
+    figure = Figure(figsize=(10, 9 if has_panoramas else 6), layout="constrained")
+    grid = figure.add_gridspec(2 if has_panoramas else 1, 1, height_ratios=[3, 2] if has_panoramas else [1])
+    axes = figure.add_subplot(grid[0])
+    _draw_detections(axes, dataset)
+    meta = dataset.meta
+    axes.set_title(f"{meta.get('world', 'dataset')}: {dataset.n} detections, aliasing {meta.get('aliasing', '?')}, "
+                   f"noise {meta.get('noise', '?')}, seed {meta.get('seed', '?')} "
+                   "(colour = true place, number = time order)", fontsize=9)
+    if has_panoramas:
+        labels = dataset.labels if dataset.labels is not None else np.arange(dataset.n)
+        strip = figure.add_subplot(grid[1])
+        strip.imshow(np.concatenate(list(dataset.panoramas), axis=0), aspect="auto", interpolation="nearest")
+        height = dataset.panoramas.shape[1]
+        strip.set_yticks((np.arange(dataset.n) + 0.5) * height, [f"{i}:{labels[i]}" for i in range(dataset.n)],
+                         fontsize=7)
+        strip.set_xticks([])
+        strip.set_title("panoramas (row = detection index:place)")
+    return _save(figure, path, tight=False)
 
 
 def top_topologies(positions, topologies, truth, path: Path, title: str = "") -> Path:
@@ -95,7 +134,8 @@ def top_topologies(positions, topologies, truth, path: Path, title: str = "") ->
     positions = np.asarray(positions, dtype=float)[:, :2]
     truth = tuple(truth)
     count = max(1, len(topologies))
-    figure, axes_row = plt.subplots(1, count, figsize=(3.2 * count, 3.4), squeeze=False)
+    figure = Figure(figsize=(3.2 * count, 3.4))
+    axes_row = figure.subplots(1, count, squeeze=False)
     for axes, (labels, probability) in zip(axes_row[0], topologies):
         labels = np.asarray(labels)
         axes.plot(positions[:, 0], positions[:, 1], "-", color="0.85", lw=1, zorder=0)
@@ -127,8 +167,8 @@ def mass_heatmap(table, path: Path, value: str = "gt_mass") -> Path:
     aliasing, noise = sorted(ok["aliasing"].unique()), sorted(ok["noise"].unique())
     aliasing_labels = _aliasing_labels(ok, aliasing)
     # Constrained layout leaves room for long "0.5 (AUC 0.81)" tick labels and the shared colorbar.
-    figure, axes_row = plt.subplots(1, len(variants), figsize=(3.4 * len(variants) + 1.8, 3.6), squeeze=False,
-                                    sharey=True, layout="constrained")
+    figure = Figure(figsize=(3.4 * len(variants) + 1.8, 3.6), layout="constrained")
+    axes_row = figure.subplots(1, len(variants), squeeze=False, sharey=True)
     for axes, variant in zip(axes_row[0], variants):
         means = ok[ok["variant"] == variant].pivot_table(index="aliasing", columns="noise", values=value, aggfunc="mean")
         grid = means.reindex(index=aliasing, columns=noise).to_numpy(dtype=float)
@@ -172,7 +212,8 @@ def reliability_diagram(tables: dict, path: Path, title: str = "") -> Path:
     """
     if not tables:
         raise ValueError("reliability_diagram: no reliability tables to draw")
-    figure, (top, bottom) = plt.subplots(2, 1, figsize=(6, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
+    figure = Figure(figsize=(6, 6.5))
+    top, bottom = figure.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
     top.plot([0, 1], [0, 1], ":", color="0.5", lw=1, label="calibrated")
     bins = None
     for index, (variant, table) in enumerate(tables.items()):
@@ -183,7 +224,7 @@ def reliability_diagram(tables: dict, path: Path, title: str = "") -> Path:
         bins = table.shape[0]
         counts = table[:, 0]
         filled = counts > 0
-        colour = plt.get_cmap("tab10")(index % 10)
+        colour = matplotlib.colormaps["tab10"](index % 10)
         top.plot(table[filled, 1] / counts[filled], table[filled, 2] / counts[filled], "o-", color=colour,
                  label=variant, ms=4, lw=1.2)
         edges = np.linspace(0.0, 1.0, bins + 1)
@@ -207,7 +248,8 @@ def sampler_traces(traces: dict, path: Path, title: str = "") -> Path:
     """Each named trace (``{name: (chains, points) array}``) in its own panel, one line per chain."""
     if not traces:
         raise ValueError("sampler_traces: no traces to draw")
-    figure, axes_column = plt.subplots(len(traces), 1, figsize=(7, 2.2 * len(traces)), squeeze=False)
+    figure = Figure(figsize=(7, 2.2 * len(traces)))
+    axes_column = figure.subplots(len(traces), 1, squeeze=False)
     for axes, (name, trace) in zip(axes_column[:, 0], traces.items()):
         trace = np.atleast_2d(np.asarray(trace, dtype=float))
         for chain, values in enumerate(trace):
@@ -226,8 +268,8 @@ def pit_histograms(pit, path: Path, bins: int = 10) -> Path:
     ``pit`` is a table with columns world, model, component and pit (values in [0, 1]).
     """
     worlds, models = list(dict.fromkeys(pit["world"])), list(dict.fromkeys(pit["model"]))
-    figure, axes = plt.subplots(len(worlds), len(models), figsize=(4.2 * len(models), 2.6 * len(worlds)),
-                                squeeze=False, sharex=True, sharey=True)
+    figure = Figure(figsize=(4.2 * len(models), 2.6 * len(worlds)))
+    axes = figure.subplots(len(worlds), len(models), squeeze=False, sharex=True, sharey=True)
     edges = np.linspace(0.0, 1.0, bins + 1)
     centres = (edges[:-1] + edges[1:]) / 2
     for row, world in enumerate(worlds):

@@ -12,13 +12,13 @@ aliasing knob. Per variant it pools the calibration of the probabilities over
 every cell (:func:`calibration_by_variant`): the expected calibration error
 ECE = sum_b (n_b / n) |mean p_b - mean y_b| of the pairwise co-assignment
 probabilities over 10 bins, exact from the per-cell ``reliability`` tables
-(:func:`ptm_bench.scoring.pooled_reliability`); the Brier score, the mean of
+(:func:`ptm_bench.evaluation.scoring.pooled_reliability`); the Brier score, the mean of
 the cells' ``brier`` weighted by ``n_pairs``; the mean log score of the truth,
 log max(gt_mass, 1e-6); and the share of confidently wrong runs (MAP
 probability >= 0.9, MAP not the truth). It puts the paper's reported figures
 (the config's ``[paper]`` table) beside ours, lists where each variant's
 parameters came from (the ``source_*`` columns), lists failed cells with their
-errors, and draws the figures of :mod:`ptm_bench.plots`: those of the first
+errors, and draws the figures of :mod:`ptm_bench.reporting.plots`: those of the first
 scored seed, the ground-truth-mass heat map, and the reliability diagram.
 
     >>> table = read_table("results/exp3_nested/cells.csv")
@@ -36,12 +36,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ptm.se2 import dead_reckoning
 from ptm.dataset import atomic_write
 
-from . import plots, scoring
-from .baselines import dead_reckoning
-from .datacache import dataset_for
-from .experiment import Experiment, expand_cells
+from ptm_bench.evaluation import scoring
+from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.experiment import Experiment, expand_cells
+from ptm_bench.reporting import plots
 
 __all__ = ["aggregate", "calibration_by_variant", "current_rows", "markdown_table", "write_summary"]
 

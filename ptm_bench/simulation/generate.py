@@ -22,31 +22,29 @@ the true pose, so the route does not depend on the odometry noise either.
 from __future__ import annotations
 
 import math
-import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 import ptm
-from ptm.dataset import wrap_angle
+from ptm.se2 import relative_pose, wrap_angle
 from ptm.features import fourier_signature
 
-from .aliasing import signature_auc
-from .detector import detect
-from .floorplan import Floorplan, assign_palettes, load_world, palette_count, palette_library
-from .odometry_noise import OdometryNoise, detection_odometry, relative_pose, sample_odometry
-from .panorama import CylindricalStitcher, add_pixel_noise
-from .robot import ControllerConfig, Rig, RigConfig, drive, place_base
-from .scene import build_mjcf, compile_scene, place_sites
+from ptm_bench.simulation.aliasing import signature_auc
+from ptm_bench.simulation.detector import detect
+from ptm_bench.world.floorplan import Floorplan, assign_palettes, load_world, palette_count, palette_library
+from ptm_bench.simulation.odometry_noise import OdometryNoise, detection_odometry, sample_odometry
+from ptm_bench.simulation.panorama import CylindricalStitcher, add_pixel_noise
+from ptm_bench.simulation.robot import ControllerConfig, Rig, RigConfig, drive, place_base
+from ptm_bench.simulation.scene import build_mjcf, compile_scene, place_sites
 
 import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
-__all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "register", "true_odometry"]
+__all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "true_odometry"]
 
-GENERATOR_VERSION = "ptm_bench.generate/3"  # 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
+GENERATOR_VERSION = "ptm_bench.simulation.generate/3"  # 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
 
 
 def generate_dataset(
@@ -205,50 +203,3 @@ def _jittered_waypoints(floor: Floorplan, route: str, rng: np.random.Generator) 
 def true_odometry(dataset: ptm.Dataset) -> np.ndarray:
     """The noise-free odometry rows implied by a dataset's true poses (for checks and plots)."""
     return relative_pose(dataset.true_poses[:-1], dataset.true_poses[1:])
-
-
-# -- command line ---------------------------------------------------------------------------------
-
-
-def register(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "generate",
-        help="simulate one run and write its dataset file",
-        description="Drive the robot through a world and write a ptm.Dataset .npz file (atomically).",
-    )
-    parser.add_argument("--world", required=True, help="a preset name (see `ptm-bench worlds`) or a floor .toml file")
-    parser.add_argument("--aliasing", type=float, required=True, help="aliasing level in [0, 1]")
-    parser.add_argument("--noise", type=float, required=True, help="odometry noise level >= 0 (1 = defaults)")
-    parser.add_argument("--seed", type=int, required=True, help="root random seed (>= 0)")
-    parser.add_argument("--out", required=True, type=Path, help="output .npz path")
-    parser.add_argument("--no-images", action="store_true", help="do not store the panoramas (signatures are kept)")
-    parser.add_argument("--miss-rate", type=float, default=0.0, help="probability that a visit is not detected")
-    parser.add_argument("--false-rate", type=float, default=0.0, help="false detections per metre driven")
-    parser.set_defaults(handler=_run_generate)
-
-
-def _run_generate(args) -> int:
-    out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"out: dataset files end in .npz, got {out}")
-    folder = out.parent if str(out.parent) else Path(".")
-    if not folder.is_dir():
-        raise ValueError(f"out: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"out: folder {folder} is not writable")
-    started = time.perf_counter()
-    dataset = generate_dataset(args.world, args.aliasing, args.noise, args.seed, images=not args.no_images,
-                               progress=sys.stderr.isatty(), miss_rate=args.miss_rate, false_rate=args.false_rate)
-    try:
-        dataset.save(out)
-    except OSError as error:
-        raise ValueError(f"out: cannot write {out}: {error}") from None
-    meta = dataset.meta
-    false = len(meta["detector"]["false_detections"])
-    print(
-        f"wrote {out}: {meta['world']}, {dataset.n} detections of {len(set(dataset.labels.tolist())) - false} places"
-        f"{f' + {false} false' if false else ''} ({meta['n_palettes']} palettes), "
-        f"aliasing {meta['aliasing']:g}, noise {meta['noise']:g}, "
-        f"seed {meta['seed']}, route {meta['route_length']:.0f} m, {time.perf_counter() - started:.1f} s"
-    )
-    return 0

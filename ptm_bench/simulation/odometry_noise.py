@@ -33,17 +33,14 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ptm.dataset import wrap_angle
+from ptm.se2 import compose, dead_reckoning, relative_pose, wrap_angle  # the one SE(2) module
 
 __all__ = [
     "COVARIANCE_FLOOR",
     "OdometryNoise",
     "OdometrySteps",
-    "compose",
     "decompose",
     "detection_odometry",
-    "integrate",
-    "relative_pose",
     "sample_odometry",
 ]
 
@@ -102,23 +99,6 @@ class OdometrySteps:
     model: OdometryNoise
 
 
-def relative_pose(world_T_a, world_T_b) -> np.ndarray:
-    """``a_T_b`` = (world_T_a)^-1 o world_T_b for (..., 3) poses, angle wrapped."""
-    a, b = np.asarray(world_T_a, dtype=float), np.asarray(world_T_b, dtype=float)
-    delta = b[..., :2] - a[..., :2]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([c * delta[..., 0] + s * delta[..., 1], -s * delta[..., 0] + c * delta[..., 1],
-                     wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
-
-
-def compose(world_T_a, a_T_b) -> np.ndarray:
-    """``world_T_b`` = world_T_a o a_T_b for (..., 3) poses (angle not wrapped)."""
-    a, step = np.asarray(world_T_a, dtype=float), np.asarray(a_T_b, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * step[..., 0] - s * step[..., 1],
-                     a[..., 1] + s * step[..., 0] + c * step[..., 1], a[..., 2] + step[..., 2]], axis=-1)
-
-
 def decompose(increments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rot1, trans, rot2) of (T, 3) increments ``prev_T_curr``; rot1 = 0 for a turn on the spot."""
     increments = np.asarray(increments, dtype=float)
@@ -147,17 +127,6 @@ def sample_odometry(true_poses, model: OdometryNoise, rng: np.random.Generator) 
     return OdometrySteps(measured, sigmas, float(scale_error), float(heading_drift), model)
 
 
-def integrate(increments, start=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """(T+1, 3) poses from composing (T, 3) increments onto ``start`` (vectorised, unwrapped angle)."""
-    increments = np.asarray(increments, dtype=float)
-    headings = start[2] + np.concatenate([[0.0], np.cumsum(increments[:, 2])])
-    c, s = np.cos(headings[:-1]), np.sin(headings[:-1])
-    world_steps = np.stack([c * increments[:, 0] - s * increments[:, 1],
-                            s * increments[:, 0] + c * increments[:, 1]], axis=-1)
-    positions = np.asarray(start[:2], dtype=float) + np.concatenate([np.zeros((1, 2)), np.cumsum(world_steps, 0)])
-    return np.column_stack([positions, headings])
-
-
 def detection_odometry(steps: OdometrySteps, detection_steps) -> tuple[np.ndarray, np.ndarray]:
     """Odometry rows (K-1, 3) and their covariances (K-1, 3, 3) between consecutive detection steps.
 
@@ -168,7 +137,7 @@ def detection_odometry(steps: OdometrySteps, detection_steps) -> tuple[np.ndarra
     in_run = len(indices) == 0 or (indices[0] >= 0 and indices[-1] <= len(steps.increments))
     if indices.ndim != 1 or np.any(np.diff(indices) <= 0) or not in_run:
         raise ValueError("detection_steps must be strictly increasing step indices within the run")
-    odometry_poses = integrate(steps.increments)
+    odometry_poses = dead_reckoning(steps.increments)
     rows = relative_pose(odometry_poses[indices[:-1]], odometry_poses[indices[1:]])
     covariances = np.array([_row_covariance(steps, start, stop) for start, stop in zip(indices[:-1], indices[1:])])
     return rows, covariances.reshape(len(rows), 3, 3)

@@ -22,7 +22,7 @@ import math
 import cv2
 import numpy as np
 
-from .robot import CAMERA_COUNT, RigConfig
+from ptm_bench.simulation.robot import CAMERA_COUNT, RigConfig
 
 __all__ = ["CylindricalStitcher", "add_pixel_noise"]
 

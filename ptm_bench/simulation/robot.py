@@ -28,6 +28,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco's renderer is importe
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ptm_bench.world.floorplan import resample_polyline  # noqa: E402
+
 __all__ = ["CAMERA_COUNT", "ControllerConfig", "Rig", "RigConfig", "Trajectory", "base_mjcf", "base_pose", "drive", "place_base"]
 
 CAMERA_COUNT = 8
@@ -141,22 +143,14 @@ class PurePursuit:
 
     def __init__(self, waypoints: np.ndarray, config: ControllerConfig):
         waypoints = np.asarray(waypoints, dtype=float)
+        self.points, corners = resample_polyline(waypoints, self.RESOLUTION)
         segments = np.diff(waypoints, axis=0)
-        lengths = np.linalg.norm(segments, axis=1)
-        keep = lengths > 1e-9
-        starts, segments, lengths = waypoints[:-1][keep], segments[keep], lengths[keep]
-        points = [waypoints[0][None]]
-        corners = []  # index in ``points`` of each waypoint between two segments
-        for start, segment, length in zip(starts, segments, lengths):
-            count = max(1, int(math.ceil(length / self.RESOLUTION)))
-            points.append(start + segment * (np.arange(1, count + 1) / count)[:, None])
-            corners.append(sum(len(chunk) for chunk in points) - 1)
-        self.points = np.concatenate(points)
+        segments = segments[np.linalg.norm(segments, axis=1) > 1e-9]
         # Sharp turns (a dead end's U-turn) are driven to and turned on the spot: pure pursuit would
         # cut them by up to the look-ahead and never reach the waypoint (nor a place there).
         headings = np.arctan2(segments[:, 1], segments[:, 0])
         turns = np.abs(np.angle(np.exp(1j * np.diff(headings))))
-        self.stops = [corners[k] for k in np.flatnonzero(turns > self.SHARP_TURN)] + [len(self.points) - 1]
+        self.stops = [int(corners[k]) for k in np.flatnonzero(turns > self.SHARP_TURN)] + [len(self.points) - 1]
         self.config = config
         self.index = 0
         self.window = int(math.ceil(2.0 / self.RESOLUTION))
@@ -234,7 +228,7 @@ class Rig:
                     "before mujoco"
                 ) from error
             raise
-        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = True  # the haze of ptm_bench.scene
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = True  # the haze of ptm_bench.simulation.scene
         self.data = mujoco.MjData(model)
         self.camera_ids = [model.camera(f"cam_{index}").id for index in range(CAMERA_COUNT)]
 

@@ -16,7 +16,7 @@ with one palette look alike up to the robot's heading and its position
 within the detection radius. Each place also has a floor marker
 ``place_<id>_marker`` and an invisible site ``place_<id>_site`` whose name is
 where ground-truth labels are read from. The base and cameras
-``cam_0``..``cam_7`` come from :mod:`ptm_bench.robot`. Names are deterministic.
+``cam_0``..``cam_7`` come from :mod:`ptm_bench.simulation.robot`. Names are deterministic.
 The near clipping plane is set in metres (``NEAR_PLANE``), not as MuJoCo's
 default share of the model's extent, which put it behind walls the robot
 passes close to.
@@ -33,8 +33,8 @@ import re
 
 import numpy as np
 
-from .floorplan import PANEL_WIDTH_PER_RADIUS, SECTOR_COUNT, SURROUNDINGS_RGB, Floorplan, Palette
-from .robot import RigConfig, base_mjcf
+from ptm_bench.world.floorplan import PANEL_WIDTH_PER_RADIUS, SECTOR_COUNT, SURROUNDINGS_RGB, Floorplan, Palette
+from ptm_bench.simulation.robot import RigConfig, base_mjcf
 
 import mujoco  # noqa: E402  (robot sets MUJOCO_GL before mujoco is first imported)
 

@@ -15,6 +15,7 @@ implements the aliasing map of SPEC §5: P places receive
 
 from __future__ import annotations
 
+import importlib.resources
 import math
 import re
 import tomllib
@@ -29,6 +30,7 @@ __all__ = [
     "Floorplan",
     "Palette",
     "WORLDS_DIR",
+    "resample_polyline",
     "assign_palettes",
     "corridor_grid",
     "list_worlds",
@@ -39,10 +41,11 @@ __all__ = [
     "parse_floorplan",
 ]
 
-WORLDS_DIR = Path(__file__).resolve().parent.parent / "worlds"
+#: The preset floors: the repository's ``worlds/`` folder, installed as the package ``ptm_bench.world.presets``.
+WORLDS_DIR = Path(str(importlib.resources.files("ptm_bench.world.presets")))
 SECTOR_COUNT = 4  # a place's decor: four panels at its diagonals, one palette colour each
 ROBOT_CLEARANCE = 0.3  # [m] a place must leave this much room to the walls
-# What a camera sees (compiled by ptm_bench.scene): walls, floor and ceiling are one matte grey,
+# What a camera sees (compiled by ptm_bench.simulation.scene): walls, floor and ceiling are one matte grey,
 # evenly lit, fading into a haze of the same grey, so the corridor layout is invisible; a place's
 # decor -- four panels at its diagonals, DECOR_RADIUS_PER_WIDTH x the narrowest corridor width
 # away, each PANEL_WIDTH_PER_RADIUS x that radius wide -- is all that tells places apart.
@@ -165,6 +168,25 @@ class Floorplan:
         points = np.array(list(self.nodes.values()), dtype=float)
         margin = max(corridor.width for corridor in self.corridors) / 2
         return (*(points.min(axis=0) - margin), *(points.max(axis=0) + margin))
+
+
+def resample_polyline(waypoints, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The polyline through ``waypoints`` sampled at most ``spacing`` metres apart, and where its corners landed.
+
+    Returns (points, segment_ends): every segment of non-zero length is cut
+    into equal pieces no longer than ``spacing`` (both its ends kept), and
+    ``segment_ends[k]`` is the index in ``points`` of the end of the k-th
+    such segment (the waypoints themselves, after zero-length segments are dropped).
+    """
+    waypoints = np.asarray(waypoints, dtype=float)
+    segments = np.diff(waypoints, axis=0)
+    lengths = np.linalg.norm(segments, axis=1)
+    keep = lengths > 1e-9
+    counts = np.maximum(1, np.ceil(lengths[keep] / spacing).astype(int))
+    pieces = [waypoints[:1]]
+    for start, segment, count in zip(waypoints[:-1][keep], segments[keep], counts):
+        pieces.append(start + segment * (np.arange(1, count + 1) / count)[:, None])
+    return np.concatenate(pieces), np.cumsum(counts)
 
 
 # -- loading ---------------------------------------------------------------------------------

@@ -1,0 +1,1 @@
+"""Benchmarks behind ``ptm-bench speed``: one module per section, each returning rows for ``results/speed.csv``."""
