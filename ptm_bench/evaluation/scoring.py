@@ -40,9 +40,10 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping
-from math import comb, isclose, log, nan
+from math import isclose, log, nan
 
 import numpy as np
+from sklearn.metrics import adjusted_rand_score, average_precision_score, precision_recall_fscore_support
 
 from ptm.partitions import canonical
 
@@ -114,29 +115,17 @@ def ground_truth_rank(distribution: Mapping, truth) -> float:
 
 
 def adjusted_rand_index(labels_a, labels_b) -> float:
-    """The adjusted Rand index of two partitions of the same N detections.
+    """The adjusted Rand index of two partitions of the same N detections (``sklearn.metrics.adjusted_rand_score``).
 
-    ARI = (I - E[I]) / (max I - E[I]) with I = sum_ij C(n_ij, 2) over the
-    contingency table, E[I] = sum_i C(a_i, 2) sum_j C(b_j, 2) / C(N, 2) and
-    max I = (sum_i C(a_i, 2) + sum_j C(b_j, 2)) / 2. When the denominator is 0
-    (both partitions all singletons, or both one block) the index is 1 for
-    equal partitions and 0 otherwise.
+    1 for equal partitions, about 0 for unrelated ones (Hubert and Arabie,
+    1985); also 1 when both are all singletons or both one block.
     """
     a, b = canonical(labels_a), canonical(labels_b)
     if len(a) != len(b):
         raise ValueError(f"labels_a has {len(a)} detections, labels_b has {len(b)}")
     if not a:
         raise ValueError("adjusted_rand_index needs at least one detection")
-    table = np.zeros((max(a) + 1, max(b) + 1), dtype=np.int64)
-    np.add.at(table, (np.array(a), np.array(b)), 1)
-    pairs = np.vectorize(lambda count: comb(int(count), 2), otypes=[float])
-    index = pairs(table).sum()
-    rows, columns = pairs(table.sum(axis=1)).sum(), pairs(table.sum(axis=0)).sum()
-    expected = rows * columns / comb(len(a), 2) if len(a) > 1 else 0.0
-    maximum = (rows + columns) / 2.0
-    if maximum == expected:
-        return 1.0 if a == b else 0.0
-    return float((index - expected) / (maximum - expected))
+    return float(adjusted_rand_score(a, b))
 
 
 def coassignment_matrix(distribution: Mapping) -> np.ndarray:
@@ -159,7 +148,8 @@ def loop_closure_scores(coassignment, truth, threshold: float = 0.5) -> dict[str
     when nothing is predicted, recall and average precision are NaN when the
     ground truth has no loop closure. Average precision ranks the pairs by
     probability and sums (R_t - R_{t-1}) P_t over the distinct probability
-    levels t, so tied pairs enter together and the order of ties does not matter.
+    levels t, so tied pairs enter together and the order of ties does not matter
+    (``sklearn.metrics``: precision, recall, F1 and average precision).
     """
     truth = np.asarray(canonical(truth))
     matrix = np.asarray(coassignment, dtype=float)
@@ -172,31 +162,16 @@ def loop_closure_scores(coassignment, truth, threshold: float = 0.5) -> dict[str
     scores = matrix[upper]
     positives = (truth[:, None] == truth[None, :])[upper]
     predicted = scores > threshold
-    true_positives = int(np.sum(predicted & positives))
     n_predicted, n_positive = int(predicted.sum()), int(positives.sum())
-    precision = true_positives / n_predicted if n_predicted else nan
-    recall = true_positives / n_positive if n_positive else nan
-    if np.isnan(precision) or np.isnan(recall):
-        f1 = nan
-    elif precision + recall == 0.0:
-        f1 = 0.0
-    else:
-        f1 = 2.0 * precision * recall / (precision + recall)
+    precision, recall, f1, _ = precision_recall_fscore_support(positives, predicted, average="binary",
+                                                               zero_division=np.nan)
     return {
-        "lc_precision": precision,
-        "lc_recall": recall,
-        "lc_f1": f1,
-        "lc_ap": _average_precision(scores, positives) if n_positive else nan,
+        "lc_precision": float(precision) if n_predicted else nan,
+        "lc_recall": float(recall) if n_positive else nan,
+        "lc_f1": float(f1) if n_predicted and n_positive else nan,
+        # sklearn's AP takes every distinct probability as a threshold, so tied pairs enter together.
+        "lc_ap": float(average_precision_score(positives, scores)) if n_positive else nan,
     }
-
-
-def _average_precision(scores: np.ndarray, positives: np.ndarray) -> float:
-    levels, inverse = np.unique(-scores, return_inverse=True)  # distinct levels, most probable first
-    hits_per_level = np.bincount(inverse, weights=positives, minlength=len(levels))
-    pairs_per_level = np.bincount(inverse, minlength=len(levels))
-    hits, pairs = np.cumsum(hits_per_level), np.cumsum(pairs_per_level)
-    recall_gain = hits_per_level / positives.sum()
-    return float(np.sum(recall_gain * hits / pairs))
 
 
 def reliability_table(probabilities, outcomes, bins: int = RELIABILITY_BINS) -> np.ndarray:

@@ -57,13 +57,7 @@ def rasterise(floor: Floorplan, cell_size: float):
     height = np.zeros(shape)
     best = np.full(shape, np.inf)
     for corridor in floor.corridors:
-        a = np.asarray(floor.nodes[corridor.start])
-        b = np.asarray(floor.nodes[corridor.end])
-        length = float(np.linalg.norm(b - a))
-        axis = (b - a) / length
-        relative = centres - a
-        along = relative @ axis
-        across = relative @ np.array([-axis[1], axis[0]])
+        along, across, length = corridor.coordinates(floor.nodes, centres)
         half = corridor.width / 2
         inside = (along >= -half) & (along <= length + half) & (np.abs(across) <= half)
         free |= inside

@@ -19,11 +19,14 @@ import importlib.resources
 import math
 import re
 import tomllib
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+
+from ptm.features import fourier_signature, grayscale
 
 __all__ = [
     "Corridor",
@@ -65,6 +68,19 @@ class Corridor:
     width: float
     wall_height: float
 
+    def coordinates(self, nodes, points) -> tuple[np.ndarray, np.ndarray, float]:
+        """(along, across, length): ``points`` (..., 2) in the corridor's frame, from its start node.
+
+        ``along`` runs from the start node towards the end node (0 to
+        ``length`` on the centreline), ``across`` to the left of that axis; the
+        corridor's free space is |across| <= width / 2 with -width / 2 <= along <= length + width / 2.
+        """
+        start, end = np.asarray(nodes[self.start], dtype=float), np.asarray(nodes[self.end], dtype=float)
+        length = float(np.linalg.norm(end - start))
+        axis = (end - start) / length
+        relative = np.asarray(points, dtype=float) - start
+        return relative @ axis, relative @ np.array([-axis[1], axis[0]]), length
+
 
 @dataclass(frozen=True)
 class Palette:
@@ -81,7 +97,7 @@ class Palette:
 
     def luminance(self) -> np.ndarray:
         """Luma of each panel colour (the quantity the grayscale signature sees)."""
-        return np.asarray(self.sectors) @ np.array([0.299, 0.587, 0.114])
+        return grayscale(np.asarray(self.sectors)[None])[0]
 
 
 @dataclass(frozen=True)
@@ -130,15 +146,12 @@ class Floorplan:
         p = np.asarray(point, dtype=float)
         directions = []
         for corridor in self.corridors:
-            a, b = np.asarray(self.nodes[corridor.start]), np.asarray(self.nodes[corridor.end])
-            length = float(np.linalg.norm(b - a))
-            axis = (b - a) / length
-            along = float((p - a) @ axis)
-            across = float((p - a) @ np.array([-axis[1], axis[0]]))
+            along, across, length = corridor.coordinates(self.nodes, p)
             half = corridor.width / 2
             if abs(across) > half or not -half <= along <= length + half:
                 continue
-            heading = math.atan2(axis[1], axis[0])
+            dx, dy = np.subtract(self.nodes[corridor.end], self.nodes[corridor.start])
+            heading = math.atan2(dy, dx)
             if along < length - half:
                 directions.append(heading)
             if along > half:
@@ -427,12 +440,9 @@ class _Reader:
 def _clearance(point, nodes, corridors) -> float:
     """How far ``point`` is inside the free space (negative: outside), from corridor centrelines."""
     best = -math.inf
-    p = np.asarray(point)
     for corridor in corridors:
-        a, b = np.asarray(nodes[corridor.start]), np.asarray(nodes[corridor.end])
-        segment = b - a
-        t = np.clip(np.dot(p - a, segment) / np.dot(segment, segment), 0.0, 1.0)
-        distance = float(np.linalg.norm(p - (a + t * segment)))
+        along, across, length = corridor.coordinates(nodes, point)
+        distance = math.hypot(across, max(0.0, -along, along - length))  # to the centreline segment
         best = max(best, corridor.width / 2 - distance)
     return best
 
@@ -498,7 +508,7 @@ def assign_palettes(floor: Floorplan, aliasing: float, rng: np.random.Generator)
 def _colour_with_luminance(rng: np.random.Generator, luminance: float) -> tuple[float, float, float]:
     """A random hue scaled so that its luma is ``luminance`` (clipped to the RGB cube)."""
     direction = rng.uniform(0.2, 1.0, size=3)
-    rgb = direction * luminance / (direction @ np.array([0.299, 0.587, 0.114]))
+    rgb = direction * luminance / grayscale(direction[None, None])[0, 0]
     return tuple(float(v) for v in np.clip(rgb, 0.0, 1.0))
 
 
@@ -509,7 +519,7 @@ def palette_signature(palette: Palette, samples: int = 360) -> np.ndarray:
     for index, luma in enumerate(palette.luminance()):
         offset = np.abs((bearings - (45.0 + 90.0 * index) + 180.0) % 360.0 - 180.0)
         ring[offset <= PANEL_HALF_ANGLE_DEG] = luma
-    return np.abs(np.fft.rfft(ring)[:5]) / samples
+    return fourier_signature(ring[None, :], k=5)
 
 
 # -- procedural corridor grids -------------------------------------------------------------------
@@ -578,61 +588,42 @@ def corridor_grid(
 
 
 def _random_spanning_tree(cells, lattice, rng) -> set:
-    """Randomised Kruskal: shuffle the lattice edges, keep those joining two components."""
-    parent = {cell: cell for cell in cells}
-
-    def root(cell):
-        while parent[cell] != cell:
-            parent[cell] = parent[parent[cell]]
-            cell = parent[cell]
-        return cell
-
-    tree = set()
-    for index in rng.permutation(len(lattice)):
-        a, b = lattice[index]
-        ra, rb = root(a), root(b)
-        if ra != rb:
-            parent[ra] = rb
-            tree.add((a, b))
-    return tree
+    """Randomised Kruskal: the minimum spanning tree when the lattice edges are weighted in a random order."""
+    index = {cell: k for k, cell in enumerate(cells)}
+    order = rng.permutation(len(lattice))  # edge order[k] is considered k-th, so it weighs k + 1
+    weights = np.empty(len(lattice))
+    weights[order] = np.arange(1, len(lattice) + 1)
+    first, second = (np.array([index[edge[side]] for edge in lattice]) for side in (0, 1))
+    graph = scipy.sparse.coo_matrix((weights, (first, second)), shape=(len(cells), len(cells)))
+    tree = scipy.sparse.csgraph.minimum_spanning_tree(graph).tocoo()
+    return {tuple(sorted((cells[a], cells[b]))) for a, b in zip(tree.row, tree.col)}
 
 
 def _tour(cells, tree, edges) -> list:
-    """Depth-first order of the tree, consecutive nodes joined by shortest paths, back to the start."""
-    tree_neighbours = {cell: [] for cell in cells}
-    for a, b in sorted(tree):
-        tree_neighbours[a].append(b)
-        tree_neighbours[b].append(a)
-    order, stack, seen = [], [cells[0]], set()
-    while stack:
-        cell = stack.pop()
-        if cell in seen:
-            continue
-        seen.add(cell)
-        order.append(cell)
-        stack.extend(sorted(tree_neighbours[cell], reverse=True))
-    neighbours = {cell: [] for cell in cells}
-    for a, b in edges:
-        neighbours[a].append(b)
-        neighbours[b].append(a)
-    route = [order[0]]
-    for target in order[1:] + [order[0]]:
-        route.extend(_shortest_path(neighbours, route[-1], target)[1:])
-    return route
+    """Depth-first order of the tree, consecutive nodes joined by shortest paths, back to the start.
 
+    Shortest paths are breadth-first through the whole graph, neighbours taken
+    in the order of ``cells`` (so ties between equally short paths are broken
+    the same way every time).
+    """
+    index = {cell: k for k, cell in enumerate(cells)}
 
-def _shortest_path(neighbours, start, goal) -> list:
-    previous = {start: None}
-    queue = deque([start])
-    while queue:
-        cell = queue.popleft()
-        if cell == goal:
-            break
-        for nxt in sorted(neighbours[cell]):
-            if nxt not in previous:
-                previous[nxt] = cell
-                queue.append(nxt)
-    path = [goal]
-    while previous[path[-1]] is not None:
-        path.append(previous[path[-1]])
-    return path[::-1]
+    def adjacency(pairs):
+        rows = [index[a] for a, b in pairs] + [index[b] for a, b in pairs]
+        columns = [index[b] for a, b in pairs] + [index[a] for a, b in pairs]
+        matrix = scipy.sparse.csr_matrix((np.ones(len(rows)), (rows, columns)), shape=(len(cells), len(cells)))
+        matrix.sort_indices()
+        return matrix
+
+    order = scipy.sparse.csgraph.depth_first_order(adjacency(sorted(tree)), 0, directed=False,
+                                                   return_predecessors=False)
+    graph = adjacency(edges)
+    route = [0]
+    for target in [*order[1:], order[0]]:
+        _, predecessors = scipy.sparse.csgraph.breadth_first_order(graph, route[-1], directed=False,
+                                                                   return_predecessors=True)
+        path = [int(target)]
+        while path[-1] != route[-1]:
+            path.append(int(predecessors[path[-1]]))
+        route.extend(path[-2::-1])
+    return [cells[k] for k in route]
