@@ -1,4 +1,4 @@
-"""The appearance evidence (SPEC §3.2) against direct numerical integration of the model."""
+"""The appearance evidence (docs/model.md §3.2) against direct numerical integration of the model."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""The joint (Normal-Inverse-Wishart) appearance model (SPEC §3.2, "components are not independent").
+"""The joint (Normal-Inverse-Wishart) appearance model (docs/model.md §3.2, "components are not independent").
 
 Evidence checked against independent computations: the chain rule through
 scipy's multivariate t (exact identity, rel 1e-10), Monte Carlo over prior

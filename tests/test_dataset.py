@@ -1,4 +1,4 @@
-"""The data contract (SPEC §2.2): validation, atomic round trip, CSV import."""
+"""The data contract (docs/model.md §2.2): validation, atomic round trip, CSV import."""
 
 import json
 

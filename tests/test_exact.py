@@ -1,4 +1,4 @@
-"""Exact enumeration (SPEC §3.5) and the PTM result it returns (SPEC §3.6)."""
+"""Exact enumeration (docs/model.md §3.5) and the PTM result it returns (docs/model.md §3.6)."""
 
 import math
 

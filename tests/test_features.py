@@ -1,4 +1,4 @@
-"""Fourier signatures (SPEC §4): rotation invariance and input checks (rendered images: test_rendering)."""
+"""Fourier signatures (docs/model.md §4): rotation invariance and input checks (rendered images: test_rendering)."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Incremental mapping (SPEC §3.7): grow the posterior one detection at a time.
+"""Incremental mapping (docs/model.md §3.7): grow the posterior one detection at a time.
 
 When detection k arrives, the models are bound again on the first k
 detections and the sampler continues from the previous PTM's top topologies

@@ -1,4 +1,4 @@
-"""The odometry likelihood (SPEC §3.3): derivatives, the estimator, the paper's Fig. 10, the sampler.
+"""The odometry likelihood (docs/model.md §3.3): derivatives, the estimator, the paper's Fig. 10, the sampler.
 
 Datasets are built here with numpy: a robot that drives a square loop and
 detects a landmark at every corner, its odometry composed on the SE(2)
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import ptm
-from ptm.dataset import wrap_angle
+from ptm.se2 import relative_pose, wrap_angle
 from ptm.odometry import landmark_penalty
 from ptm.pose_graph import (odometry_jacobian_blocks, odometry_residuals, odometry_second_order_blocks,
                             odometry_sqrt_information, poses_from_vector)
@@ -30,11 +30,7 @@ def square_loop_dataset(n, side=5.0, sigma_xy=0.1, sigma_theta=0.03, seed=0, sig
     corners = np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])
     labels = np.arange(n) % 4
     poses = np.column_stack([corners[labels], wrap_angle(labels * np.pi / 2)])
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    delta = current[:, :2] - previous[:, :2]
-    odometry = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                                wrap_angle(current[:, 2] - previous[:, 2])])
+    odometry = relative_pose(poses[:-1], poses[1:])  # previous_T_current
     odometry = odometry + odometry_rng.normal(0.0, [sigma_xy, sigma_xy, sigma_theta], size=odometry.shape)
     signatures = None
     if signature_noise is not None:
@@ -112,10 +108,10 @@ def test_energy_gradient_and_newton_hessian_match_finite_differences(covariance)
     graph = ptm.OdometryModel(0.1, 0.05, 0.3, 2.5, 0.0).bind(dataset).graph
     labels = np.array([0, 1, 2, 3, 0, 1])
     x = graph.dead_reckoning() + np.random.default_rng(5).normal(0.0, 0.3, graph.dimension)
-    topology = graph._topology_hessian(labels)
+    topology = graph.topology(labels)
     linearisation = graph.linearise(x, topology)
     assert linearisation.energy == graph.energy(x, labels)
-    hessian = graph._hessian_matrix(topology, linearisation.gauss_newton + linearisation.second_order).toarray()
+    hessian = graph.hessian_matrix(topology, linearisation.gauss_newton + linearisation.second_order).toarray()
     step = 1e-6
     basis = np.eye(graph.dimension)
     numeric_gradient = np.array([(graph.energy(x + step * e, labels) - graph.energy(x - step * e, labels)) / (2 * step)
@@ -142,7 +138,7 @@ def test_topology_energy_is_the_pairwise_sum_not_the_star_energy():
     topology = graph.topology(labels)
     np.testing.assert_allclose(topology.energy(states), pairwise, rtol=1e-12)
     np.testing.assert_allclose(topology.energy_around(centre, offsets), pairwise, rtol=1e-12)
-    np.testing.assert_allclose(topology @ centre, graph._hessian_matrix(topology, np.zeros((15, 3, 3))) @ centre,
+    np.testing.assert_allclose(topology @ centre, graph.hessian_matrix(topology, np.zeros((15, 3, 3))) @ centre,
                                rtol=1e-12)
     assert np.all(topology.energy(states) > 0)
 
@@ -159,11 +155,11 @@ def test_factors_solve_log_det_and_sample_the_assembled_hessian(sparse_above):
     dataset = square_loop_dataset(9, sigma_xy=0.2, sigma_theta=0.05)
     graph = ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 0.0, sparse_above=sparse_above).bind(dataset).graph
     labels = np.array([0, 1, 2, 3, 0, 1, 2, 3, 0])
-    topology = graph._topology_hessian(labels)
+    topology = graph.topology(labels)
     linearisation = graph.linearise(graph.dead_reckoning(), topology)
     gradient, gauss_newton = linearisation.gradient, linearisation.gauss_newton
-    factor = graph._factorised_hessian(topology, gauss_newton)
-    hessian = graph._hessian_matrix(topology, gauss_newton).toarray()
+    factor = graph.factorise(topology, gauss_newton)
+    hessian = graph.hessian_matrix(topology, gauss_newton).toarray()
     assert factor.log_det() == pytest.approx(np.linalg.slogdet(hessian)[1], rel=1e-12)
     np.testing.assert_allclose(factor.solve(gradient), np.linalg.solve(hessian, gradient), rtol=1e-9, atol=1e-12)
     noise = np.random.default_rng(8).standard_normal((graph.dimension + 9, 40_000))
@@ -228,7 +224,7 @@ def test_weighting_the_samples_in_chunks_changes_nothing(monkeypatch):
     chunked = model.bind(dataset)
     monkeypatch.setattr(ptm.odometry, "IMPORTANCE_CHUNK_BYTES", 1 << 40)
     whole = model.bind(dataset)
-    assert len(chunked._sample_chunks) > 1 and len(whole._sample_chunks) == 1
+    assert len(chunked.sample_chunks) > 1 and len(whole.sample_chunks) == 1
     for labels in (dataset.labels, np.arange(100) % 7):
         first, second = chunked.evaluate(labels), whole.evaluate(labels)
         assert first.log_likelihood == pytest.approx(second.log_likelihood, rel=1e-12)

@@ -1,4 +1,4 @@
-"""The penalty-aware importance proposal of the odometry likelihood (SPEC §3.3, issue 9 item 6).
+"""The penalty-aware importance proposal of the odometry likelihood (docs/model.md §3.3, issue 9 item 6).
 
 Where the landmark-density penalty is active at the Laplace optimum P*, the
 estimate of log P(O | T) draws half its samples from a Laplace fit of
@@ -54,7 +54,7 @@ def test_ground_truth_mass_does_not_depend_on_the_importance_seed(max_penalty):
 
 
 def test_negative_control_the_single_gaussian_proposal_fails_the_same_check(monkeypatch):
-    monkeypatch.setattr(OdometryTerm, "_penalty_mixture", lambda self, fit, labels, centre_distance: None)
+    monkeypatch.setattr(OdometryTerm, "penalty_mixture", lambda self, fit, labels, centre_distance: None)
     masses = truth_masses(issue_loop(), 10.0)
     assert np.ptp(masses) > 2 * SPREAD_TOLERANCE, masses
 
@@ -66,18 +66,18 @@ def test_mixture_density_matches_dense_linear_algebra():
     topology = term.graph.topology(labels)
     fit = term.graph.fit(term.graph.dead_reckoning(), topology)
     centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
-    mixture = term._penalty_mixture(fit, labels, centre_distance)
+    mixture = term.penalty_mixture(fit, labels, centre_distance)
     assert mixture is not None and mixture.shift > 0.5
     samples = slice(0, 100)
-    log_weights = term._log_weight_terms(fit, labels, centre_distance, mixture, samples)
+    log_weights = term.log_weight_terms(fit, labels, centre_distance, mixture, samples)
     # the same draws, rebuilt here: component c moves the penalised positions u = L^-1 B delta
-    offsets, _ = fit.factor.sample(term._noise_columns[:, samples])
+    offsets, _ = fit.factor.sample(term.noise_columns[:, samples])
     local = np.linalg.solve(mixture.factor, mixture.selector.T @ offsets)
     moved = local.copy()
     second = mixture.component_of == 1
     moved[:, second] = mixture.means[1][:, None] + mixture.relative_factors[1] @ local[:, second]
     offsets = offsets + mixture.regression @ (moved - local)
-    hessian = term.graph._hessian_matrix(topology, term.graph.linearise(fit.x, topology).gauss_newton).toarray()
+    hessian = term.graph.hessian_matrix(topology, term.graph.linearise(fit.x, topology).gauss_newton).toarray()
     covariance = np.linalg.inv(hessian)
     states = fit.x + offsets.T
     log_densities = []
@@ -87,7 +87,7 @@ def test_mixture_density_matches_dense_linear_algebra():
                                                     covariance + mixture.regression @ spread @ mixture.regression.T)
         log_densities.append(math.log(share) + component.logpdf(states))
     expected = (-np.logaddexp.reduce(np.array(log_densities), axis=0) - term.graph.energy(states, topology)
-                - term._penalties(states, offsets, fit.x, labels, centre_distance))
+                - term.penalties(states, offsets, fit.x, labels, centre_distance))
     log_norm = 0.5 * term.dimension * math.log(2 * math.pi) - 0.5 * fit.factor.log_det()
     np.testing.assert_allclose(log_weights + log_norm, expected, rtol=0, atol=1e-9)
     assert np.all(mixture.component_of[:50] == 0) and np.all(mixture.component_of[50:] == 1)

@@ -1,4 +1,4 @@
-"""The Poisson occupancy prior (SPEC §3.1) is a proper distribution over partitions."""
+"""The Poisson occupancy prior (docs/model.md §3.1) is a proper distribution over partitions."""
 
 import math
 

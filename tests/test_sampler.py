@@ -1,4 +1,4 @@
-"""The samplers against exactly enumerated posteriors (SPEC §3.4-3.5).
+"""The samplers against exactly enumerated posteriors (docs/model.md §3.4-3.5).
 
 Every move must leave the posterior invariant. The check: run the chain with
 fixed seeds and bound the total variation distance between its histogram and

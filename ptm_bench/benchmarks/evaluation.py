@@ -1,4 +1,4 @@
-"""``ptm-bench speed --section evaluation``: the cost of the evaluation harness itself (SPEC §6).
+"""``ptm-bench speed --section evaluation``: the cost of the evaluation harness itself (docs/model.md §6).
 
 * ``sweep_overhead_per_cell`` — wall time per cell of a sweep whose cells do
   nothing (forking a process, collecting the row, rewriting ``cells.csv``),

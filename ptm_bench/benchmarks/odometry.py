@@ -1,4 +1,4 @@
-"""The ``odometry`` section of ``ptm-bench speed``: cost of the odometry likelihood (SPEC §3.3).
+"""The ``odometry`` section of ``ptm-bench speed``: cost of the odometry likelihood (docs/model.md §3.3).
 
 Measures, on synthetic routes (a robot visiting about N/3 places on a 5 m
 grid in random order, odometry composed on SE(2) with noise):

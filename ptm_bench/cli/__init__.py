@@ -43,9 +43,8 @@ def main(argv=None) -> int:
         return 2
     try:
         return int(args.handler(args) or 0)
-    except (ValueError, FileNotFoundError, KeyError) as error:
-        message = error.args[0] if isinstance(error, KeyError) and error.args else error
-        print(f"ptm-bench {args.command}: error: {message}", file=sys.stderr)
+    except (ValueError, FileNotFoundError) as error:  # bad input; a programming error keeps its traceback
+        print(f"ptm-bench {args.command}: error: {error}", file=sys.stderr)
         return 2
 
 

@@ -5,7 +5,7 @@ smaller one, twelve detections), the posterior over topologies (paper eq. 2:
 prior eq. 8-9, odometry eq. 11-14, appearance eq. 15-19 corrected) is
 sampled with odometry alone and with odometry plus appearance, the two
 threshold baselines are run, every answer is scored against the ground truth
-(SPEC §6), and the scores, the parameters' sources, the top topologies and
+(docs/model.md §6), and the scores, the parameters' sources, the top topologies and
 the figures are written to ``results/demo/``. Each cell is a sweep cell
 (:func:`ptm_bench.evaluation.cell.run_cell`), so the demo follows the same rules: every
 parameter is configured, a sensor specification, or calibrated on the two

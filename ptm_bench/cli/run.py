@@ -1,4 +1,4 @@
-"""``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures (SPEC §6).
+"""``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures (docs/model.md §6).
 
 Cells already in ``results/NAME/cells.csv`` are skipped, so an interrupted run
 resumes where it stopped; cells whose config was edited since are recomputed. Cells run in local processes by default, or on a

@@ -1,7 +1,7 @@
-"""The ``worlds`` and ``show`` sub-commands: list the floors, draw a generated dataset (SPEC §5).
+"""The ``worlds`` and ``show`` sub-commands: list the floors, draw a generated dataset (docs/model.md §5).
 
 ``show`` draws the true detection poses and the odometry dead-reckoned from the
-first true pose (composing the dataset's odometry rows, SPEC §2.2), numbers
+first true pose (composing the dataset's odometry rows, docs/model.md §2.2), numbers
 each detection with its index and true place id, marks the world's places,
 and appends the panorama strip when the file holds panoramas.
 

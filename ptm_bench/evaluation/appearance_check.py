@@ -1,4 +1,4 @@
-"""Predictive check of the appearance models on held-out simulated runs (SPEC §3.2, §6).
+"""Predictive check of the appearance models on held-out simulated runs (docs/model.md §3.2, §6).
 
 An appearance model is fitted by empirical Bayes on labelled calibration runs
 and then asked about runs it has never seen, at aliasing 0 (every place has

@@ -1,4 +1,4 @@
-"""Baselines that commit to one topology, scored like a PTM (SPEC §6).
+"""Baselines that commit to one topology, scored like a PTM (docs/model.md §6).
 
 Both baselines are the same greedy rule on different features: detections are
 taken in time order, and each joins the nearest existing place (the running

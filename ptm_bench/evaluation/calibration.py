@@ -1,4 +1,4 @@
-"""Parameters of a cell's posterior, from the config, a sensor specification, or held-out runs (SPEC §3, §6).
+"""Parameters of a cell's posterior, from the config, a sensor specification, or held-out runs (docs/model.md §3, §6).
 
 Nothing inside inference may come from the scored run's ground truth: a user
 with a real robot knows neither the number of places nor their spacing. Every

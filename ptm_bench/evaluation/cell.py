@@ -1,4 +1,4 @@
-"""One sweep cell: a dataset, a model variant or baseline, inference, and its scores (SPEC §6).
+"""One sweep cell: a dataset, a model variant or baseline, inference, and its scores (docs/model.md §6).
 
 :func:`run_cell` takes a cell from :func:`ptm_bench.evaluation.experiment.expand_cells`
 and returns its table row: the scores of :func:`ptm_bench.evaluation.scoring.score`,
@@ -70,7 +70,7 @@ def run_cell(cell: dict) -> dict:
     else:
         row = _run_inference(cell, dataset)
     row["true_labels"] = json.dumps(list(ptm.canonical(dataset.labels)))
-    # The measured aliasing of the run (SPEC §6), beside the aliasing knob; NaN where the generator did not measure it.
+    # The measured aliasing of the run (docs/model.md §6), beside the aliasing knob; NaN where the generator did not measure it.
     row["aliasing_auc"] = float(dataset.meta.get("aliasing_auc", math.nan))
     row["inference_wall_s"] = time.perf_counter() - inference_started
     row["wall_s"] = time.perf_counter() - started

@@ -12,12 +12,12 @@ the version therefore gives a new cache file, and — since
 ``ptm_bench.evaluation.experiment`` puts the same identity into every cell's definition
 digest — recomputes the sweep cells that used the old one.
 
-The simulator is deterministic in these (SPEC §5), so a cached file is
+The simulator is deterministic in these (docs/model.md §5), so a cached file is
 exactly what generation would give. Several model variants and the
 calibration of every cell of one condition share one dataset, so each is
 generated once per machine. Files are written atomically (two processes
 racing write the same bytes), without the panoramas. With ``components``
-set, the signatures keep K Fourier components (SPEC §4) instead of the
+set, the signatures keep K Fourier components (docs/model.md §4) instead of the
 generator's default.
 
     >>> dataset = dataset_for("nested_loops", aliasing=0.0, noise=1.0, seed=3, cache_dir="results/exp3/datasets")

@@ -1,4 +1,4 @@
-"""Experiment configs: TOML files in ``experiments/``, validated and expanded into sweep cells (SPEC §6).
+"""Experiment configs: TOML files in ``experiments/``, validated and expanded into sweep cells (docs/model.md §6).
 
 A config names the worlds, aliasing and noise levels, scored seeds and the
 separate calibration seeds, the inference settings, and the model variants

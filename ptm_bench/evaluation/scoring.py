@@ -1,7 +1,7 @@
-"""Scores of a posterior over topologies against the ground truth (SPEC §6).
+"""Scores of a posterior over topologies against the ground truth (docs/model.md §6).
 
 A result to score is a *distribution*: a mapping from canonical partitions
-(restricted growth strings, SPEC §2.1) to probabilities. A PTM gives its
+(restricted growth strings, docs/model.md §2.1) to probabilities. A PTM gives its
 histogram (:func:`distribution_of`); a baseline's single answer is a point mass
 on one partition. From the distribution and the true labels this module
 computes
@@ -12,9 +12,9 @@ computes
   of the MAP (Hubert and Arabie, 1985);
 * loop-closure precision, recall and F1 at a co-assignment threshold, and the
   average precision of the pairs ranked by their co-assignment probability
-  ("i and j are the same place", SPEC §3.6);
+  ("i and j are the same place", docs/model.md §3.6);
 * the expected and the true number of places;
-* calibration (SPEC §6): the log score of the truth, log max(gt_mass, 1e-6)
+* calibration (docs/model.md §6): the log score of the truth, log max(gt_mass, 1e-6)
   (:data:`LOG_SCORE_FLOOR`); whether the run is *confidently wrong* (its MAP
   has probability >= 0.9, :data:`CONFIDENT`, and is not the truth); and, for
   the N(N-1)/2 pairs i < j with probability p = P(i and j are the same place)

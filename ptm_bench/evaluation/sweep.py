@@ -1,4 +1,4 @@
-"""The sweep engine: run many independent cells, one tidy table row each, resumably (SPEC §6).
+"""The sweep engine: run many independent cells, one tidy table row each, resumably (docs/model.md §6).
 
 A *cell* is a dict with a unique ``"cell_id"`` and the plain values (strings,
 numbers, booleans) that identify it — world, aliasing, noise, seed, model

@@ -1,4 +1,4 @@
-"""The figures of an experiment (SPEC §6), drawn with matplotlib (Agg) and written atomically as PNG.
+"""The figures of an experiment (docs/model.md §6), drawn with matplotlib (Agg) and written atomically as PNG.
 
 * :func:`trajectories` — the true path and the dead-reckoned odometry path
   (paper Figs. 9, 12, 15), detections coloured by their true place.

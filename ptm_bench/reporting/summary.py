@@ -1,4 +1,4 @@
-"""The report of an experiment: ``summary.md`` with its tables and figures (SPEC §6).
+"""The report of an experiment: ``summary.md`` with its tables and figures (docs/model.md §6).
 
 From the sweep table (``cells.csv``) this module first keeps exactly the
 cells of the current config (:func:`current_rows`: rows of cells no longer in

@@ -1,4 +1,4 @@
-"""Measured aliasing: how well appearance alone tells places apart in one dataset (SPEC §5, §6).
+"""Measured aliasing: how well appearance alone tells places apart in one dataset (docs/model.md §5, §6).
 
 The aliasing knob a in [0, 1] sets how many distinct decors the places get;
 what inference meets is how alike the *signatures* are. The measured

@@ -1,4 +1,4 @@
-"""The landmark detector: fires at the robot's closest approach to a place (SPEC §5).
+"""The landmark detector: fires at the robot's closest approach to a place (docs/model.md §5).
 
 A *visit* is a maximal run of control steps during which the robot is within
 ``radius`` of one place; the detection is the step of that run nearest to the

@@ -1,4 +1,4 @@
-"""Generate a ground-truth dataset end to end: floor -> MuJoCo run -> detections -> ``ptm.Dataset`` (SPEC §5, §2.2).
+"""Generate a ground-truth dataset end to end: floor -> MuJoCo run -> detections -> ``ptm.Dataset`` (docs/model.md §5, §2.2).
 
 The floor's places get ``palette_count(P, aliasing)`` distinct palettes; the
 scene is compiled to MJCF; the base drives the route under ``mj_step``; the

@@ -1,4 +1,4 @@
-"""Noisy odometry: the rotation-translation-rotation motion model, systematic error, covariance (SPEC §5).
+"""Noisy odometry: the rotation-translation-rotation motion model, systematic error, covariance (docs/model.md §5).
 
 Every control step the true planar motion ``prev_T_curr`` is decomposed as
 ``rot1`` (turn towards the new position), ``trans`` (drive) and ``rot2`` (turn

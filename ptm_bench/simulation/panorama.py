@@ -1,4 +1,4 @@
-"""Stitch the eight mast views into one 360-degree cylindrical panorama (SPEC §5, §4).
+"""Stitch the eight mast views into one 360-degree cylindrical panorama (docs/model.md §5, §4).
 
 Each pinhole view (focal length f pixels, principal point at the image
 centre) is warped onto a cylinder of radius f with OpenCV's ``remap``: the

@@ -1,4 +1,4 @@
-"""The mobile base, its path-following controller and the eight-camera mast (SPEC §5).
+"""The mobile base, its path-following controller and the eight-camera mast (docs/model.md §5).
 
 The base is a MuJoCo body with three joints (slide x, slide y, hinge yaw)
 driven by velocity actuators; every control period the controller turns the

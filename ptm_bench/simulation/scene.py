@@ -1,4 +1,4 @@
-"""Compile a floor plan to MJCF: walls, floor, ceiling, place decor, and the robot (SPEC §5).
+"""Compile a floor plan to MJCF: walls, floor, ceiling, place decor, and the robot (docs/model.md §5).
 
 Like dm_control's mazes, the abstract layout is rasterised onto a grid
 (``cell_size`` metres): a cell is free if it lies inside a corridor rectangle

@@ -1,11 +1,11 @@
 """Floor plans: corridor-and-loop worlds read from TOML, presets, a procedural grid, palettes.
 
-A floor (SPEC §5) is a graph of junction nodes joined by straight corridors
+A floor (docs/model.md §5) is a graph of junction nodes joined by straight corridors
 (width, wall height), a set of *places* (ids and positions where the landmark
 detector fires), appearance *palettes*, and *routes* (node sequences the robot
 drives). This module parses and validates the TOML files in ``worlds/``
 (errors name the field and the line), generates corridor grids for sweeps, and
-implements the aliasing map of SPEC §5: P places receive
+implements the aliasing map of docs/model.md §5: P places receive
 ``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes.
 
     >>> floor = load_world("nested_loops")
@@ -102,7 +102,7 @@ class Palette:
 
 @dataclass(frozen=True)
 class Floorplan:
-    """A validated floor: geometry, places, palettes and routes (SPEC §5)."""
+    """A validated floor: geometry, places, palettes and routes (docs/model.md §5)."""
 
     name: str
     nodes: dict[str, tuple[float, float]]
@@ -451,7 +451,7 @@ def _clearance(point, nodes, corridors) -> float:
 
 
 def palette_count(n_places: int, aliasing: float) -> int:
-    """SPEC §5: ``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes for P places."""
+    """docs/model.md §5: ``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes for P places."""
     if isinstance(aliasing, bool) or not isinstance(aliasing, (int, float)) or not 0.0 <= aliasing <= 1.0:
         raise ValueError(f"aliasing must be a number in [0, 1], got {aliasing!r}")
     if n_places < 1:
