@@ -66,9 +66,9 @@ from ._validation import non_negative, positive
 from .partitions import Partition
 from .pose_graph import SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, odometry_sqrt_information, poses_from_vector
 
-__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "landmark_penalty"]
+__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "landmark_penalty"]
 
-#: Bytes of one importance-sampling temporary (see ``OdometryTerm._sample_chunks``).
+#: Bytes of one importance-sampling temporary (see ``OdometryTerm.sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
 DEFENSIVE_SHARE = 0.5
@@ -163,6 +163,11 @@ class OdometryTerm:
     estimate is still used: the Gaussian at the last iterate is a valid
     importance-sampling proposal, only a less efficient one. A NaN or +inf
     estimate raises ``ValueError`` naming the partition.
+
+    Attributes: ``graph`` (the :class:`ptm.pose_graph.PoseGraph` of the
+    dataset), ``noise_columns`` (the common random numbers, (d + N, S)
+    standard normals) and ``sample_chunks`` (the slices of the samples weighted
+    together).
     """
 
     name = "odometry"
@@ -185,13 +190,13 @@ class OdometryTerm:
                                           else np.random.SeedSequence(model.seed))
         # d rows for the poses plus up to N for the low-rank part of the factor (one per set and axis)
         noise = generator.standard_normal((model.n_importance, self.dimension + self.n))
-        self._noise_columns = np.asfortranarray(noise.T)  # the layout LAPACK's triangular solves take as is
+        self.noise_columns = np.asfortranarray(noise.T)  # the layout LAPACK's triangular solves take as is
         # Samples are weighted in chunks whose temporaries (S x N x 3 poses and the like) stay under 128 KiB:
         # glibc hands larger freed blocks back to the operating system by default, and faulting them in again
         # on every evaluation cost about 1 ms of the 5 at N = 100.
         chunks = math.ceil(model.n_importance * 3 * self.n * 8 / IMPORTANCE_CHUNK_BYTES)
         chunk_size = math.ceil(model.n_importance / chunks)
-        self._sample_chunks = [slice(begin, begin + chunk_size) for begin in range(0, model.n_importance, chunk_size)]
+        self.sample_chunks = [slice(begin, begin + chunk_size) for begin in range(0, model.n_importance, chunk_size)]
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._last_solution = self._dead_reckoning
@@ -266,7 +271,7 @@ class OdometryTerm:
             "linear_algebra": "sparse" if self.graph.sparse else "banded_low_rank",
         }
 
-    # -- internals ------------------------------------------------------------------------------
+    # -- the estimator's steps (public so that tests can check each one against dense algebra) ----------
 
     def _warm_start(self, topology) -> np.ndarray:
         """The lowest-energy start under ``topology`` among the last optimum, the optimum of the most
@@ -279,9 +284,9 @@ class OdometryTerm:
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
-        mixture = self._penalty_mixture(fit, labels, centre_distance)
+        mixture = self.penalty_mixture(fit, labels, centre_distance)
         log_weights = log_proposal_norm + np.concatenate([
-            self._log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self._sample_chunks
+            self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
         ])
         largest = float(log_weights.max())
         weights = np.exp(log_weights - largest)
@@ -305,14 +310,14 @@ class OdometryTerm:
             penalty_shift=mixture.shift if mixture is not None else 0.0,
         )
 
-    def _log_weight_terms(self, fit: LaplaceFit, labels, centre_distance, mixture, chunk: slice) -> np.ndarray:
+    def log_weight_terms(self, fit: LaplaceFit, labels, centre_distance, mixture, chunk: slice) -> np.ndarray:
         """1/2 delta^T H delta - E(P* + delta) - Pen(P* + delta) for the samples of ``chunk`` without the
         penalty mixture; with it, -E - Pen - log(sum_c alpha_c exp(-Q_c)), Q_c = 1/2 (x - m_c)^T H (x - m_c)."""
-        offsets, half_quadratic = fit.factor.sample(self._noise_columns[:, chunk])
+        offsets, half_quadratic = fit.factor.sample(self.noise_columns[:, chunk])
         if mixture is None:
             states = fit.x + offsets.T
             return (half_quadratic - self.graph.energies_around(fit, offsets)
-                    - self._penalties(states, offsets, fit.x, labels, centre_distance))
+                    - self.penalties(states, offsets, fit.x, labels, centre_distance))
         # Component c draws the positions t of the penalised detections from N(t_c, S_c) and the rest of the
         # poses from q_0's conditional given t: delta' = delta + R (tau' - tau), R = H^-1 B^T S^-1, with
         # tau = B delta ~ N(0, S) and tau' = t_c - t* + L_c L^-1 tau. Then q_c(x) / q_0(x) is a ratio of
@@ -338,9 +343,9 @@ class OdometryTerm:
         log_ratio = largest + np.log(np.sum(np.exp(exponents - largest), axis=0))  # log sum_c alpha_c q_c / q_0
         states = fit.x + offsets.T
         return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
-                - self._penalties(states, offsets, fit.x, labels, centre_distance))
+                - self.penalties(states, offsets, fit.x, labels, centre_distance))
 
-    def _penalty_mixture(self, fit: LaplaceFit, labels, centre_distance) -> "_PenaltyMixture | None":
+    def penalty_mixture(self, fit: LaplaceFit, labels, centre_distance) -> "PenaltyMixture | None":
         """The defensive mixture of N(P*, H^-1) and a Laplace fit of the penalised target, or None when no pair
         of different sets is within the penalty radius at P* (then P* is also a stationary point of E + Pen).
 
@@ -387,7 +392,7 @@ class OdometryTerm:
         counts = [total - int(total * (1.0 - DEFENSIVE_SHARE)), int(total * (1.0 - DEFENSIVE_SHARE))]
         bounds = np.cumsum([0] + counts)
         component_of = np.repeat(np.arange(len(means)), counts)
-        return _PenaltyMixture(
+        return PenaltyMixture(
             selector=selector,
             regression=scipy.linalg.solve_triangular(factor, regression.T, lower=True, trans=0).T,
             factor=factor,
@@ -400,7 +405,7 @@ class OdometryTerm:
             shift=shift,
         )
 
-    def _penalties(self, states, offsets, centre, labels, centre_distance) -> np.ndarray:
+    def penalties(self, states, offsets, centre, labels, centre_distance) -> np.ndarray:
         """Pen of every sample (``states``: (S, d), their ``offsets`` from the ``centre`` P*: (d, S));
         pairs that no sample can bring within the radius are skipped exactly."""
         if self.model.max_penalty == 0.0 or self.n < 2:
@@ -435,7 +440,7 @@ class OdometryTerm:
 
 
 @dataclass(frozen=True)
-class _PenaltyMixture:
+class PenaltyMixture:
     """The proposal's components, in the coordinates u = L^-1 (t - t*) of the penalised detections'
     positions t = B x, where q_0 = N(P*, H^-1) has u ~ N(0, I): component c draws u from
     N(``means``[c], F_c F_c^T), F_c = ``relative_factors``[c], and the other poses from q_0's
