@@ -24,6 +24,8 @@ from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
 from ptm_bench.evaluation.sweep import run_sweep
 
+pytestmark = pytest.mark.slow  # one module-level sweep of about 100 s on two cores
+
 SEEDS = [0, 1, 2]
 
 BASE = {

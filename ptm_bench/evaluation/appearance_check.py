@@ -20,8 +20,7 @@ paper's independent-component model (``ptm.AppearanceModel``) are checked on
 the same runs. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
 ``summary.md`` and ``pit.png`` to its output folder.
 
-    >>> table, pit = predictive_check({"office": "office"}, runs=30, calibration_runs=10)
-    >>> table[["world", "model", "revisits_favouring_split", "different_favouring_merge"]]
+    $ ptm-bench appearance-check --worlds office --runs 30 --calibration-runs 10
 """
 
 from __future__ import annotations

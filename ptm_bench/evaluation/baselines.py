@@ -15,9 +15,12 @@ picks the one with the best mean adjusted Rand index on labelled calibration
 datasets (the held-out calibration seeds), from the candidate distances
 those datasets offer.
 
-    >>> features = BASELINE_FEATURES["greedy_odometry"]
-    >>> threshold = fit_threshold(calibration_datasets, features)
-    >>> labels = greedy_threshold_labels(features(dataset), threshold)
+    >>> import numpy as np, ptm
+    >>> features = BASELINE_FEATURES["appearance_threshold"]
+    >>> held_out = [ptm.Dataset(signatures=[[0.0], [5.0], [0.2], [5.1]], labels=[0, 1, 0, 1])]
+    >>> threshold = fit_threshold(held_out, features)
+    >>> greedy_threshold_labels(np.array([[0.1], [4.9], [9.8], [0.3]]), threshold)
+    (0, 1, 2, 0)
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ The calibrated ones:
   share of detections that are first visits is set by the route rules that
   every floor of a generator shares, so it transfers. On a preset floor the
   rate is the number of places the route visits, as the floor is the same;
-* the penalty radius D (paper eq. 14) is ``penalty_radius_factor`` x the
+* the penalty radius D (paper eq. 11-12) is ``penalty_radius_factor`` x the
   smallest distance between the true positions of two detections of different
   places, the minimum over every held-out run. D says "distinct places are not
   closer than this"; the penalty fires on any topology that puts two places
@@ -41,10 +41,15 @@ Each function returns ``(value, source)``: the number and a one-line
 provenance that :mod:`ptm_bench.evaluation.cell` records as the ``source_<parameter>``
 column.
 
-    >>> held_out = calibration_datasets(cell)
-    >>> rate, source = prior_rate({"prior_rate": None}, n=dataset.n, held_out=held_out)
-    >>> radius, source = penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, held_out)
-    >>> sigma, source = topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, dataset.meta)
+    >>> import numpy as np, ptm
+    >>> square = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
+    >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square)]   # one labelled run
+    >>> prior_rate({"prior_rate": None}, n=12, held_out=held_out)
+    (9.0, 'calibrated: 0.75 places/detection on 1 held-out run x N=12')
+    >>> penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, held_out)
+    (3.0, 'calibrated: 0.75 x 4 m, the closest detections of different places on 1 held-out run')
+    >>> topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, {"detection_radius": 1.0})
+    (2.0, 'sensor spec: 2 x detection radius 1 m')
 """
 
 from __future__ import annotations

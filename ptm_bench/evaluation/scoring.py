@@ -33,7 +33,8 @@ the cells' ``brier`` weighted by their ``n_pairs``.
     >>> row = score({(0, 1, 0): 0.75, (0, 1, 2): 0.25}, truth=[0, 1, 0])
     >>> row["gt_mass"], row["gt_rank"], row["map_correct"], row["confidently_wrong"]
     (0.75, 1, True, False)
-    >>> expected_calibration_error(pooled_reliability(table["reliability"]))
+    >>> round(expected_calibration_error(reliability_table([0.95, 0.85, 0.05], [1, 1, 0])), 4)
+    0.0833
 """
 
 from __future__ import annotations

@@ -18,10 +18,14 @@
   probability integral transform of held-out revisits, one line per signature
   component (flat at 1 when the predictive is calibrated).
 
-    >>> trajectories(dataset, Path("results/exp3_nested/trajectory.png"), title="nested_loops, seed 0")
-    >>> top_topologies(dataset.true_poses, [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=Path("top.png"))
-    >>> mass_heatmap(table, Path("results/grid/heatmap.png"))
-    >>> reliability_diagram({"odometry": pooled_reliability(table["reliability"])}, Path("reliability.png"))
+    >>> import tempfile, numpy as np, ptm
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> poses = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 1.6], [0.1, 0.2, 3.1]])
+    >>> dataset = ptm.Dataset(odometry=ptm.se2.relative_pose(poses[:-1], poses[1:]), labels=[0, 1, 0], true_poses=poses)
+    >>> trajectories(dataset, folder / "trajectory.png").name
+    'trajectory.png'
+    >>> top_topologies(poses, [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=folder / "top.png").name
+    'top.png'
 """
 
 from __future__ import annotations

@@ -21,9 +21,8 @@ parameters came from (the ``source_*`` columns), lists failed cells with their
 errors, and draws the figures of :mod:`ptm_bench.reporting.plots`: those of the first
 scored seed, the ground-truth-mass heat map, and the reliability diagram.
 
-    >>> table = read_table("results/exp3_nested/cells.csv")
-    >>> write_summary(load_experiment("experiments/exp3_nested.toml"), table, Path("results/exp3_nested"))
-    >>> print(Path("results/exp3_nested/summary.md").read_text())
+    $ ptm-bench run experiments/exp3_nested.toml      # runs the cells, then writes the summary
+    $ cat results/exp3_nested/summary.md
 """
 
 from __future__ import annotations

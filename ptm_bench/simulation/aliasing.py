@@ -14,8 +14,10 @@ pair (perfectly separable), 0.5 means signature distance carries no
 information about the place. False detections (negative labels) are left
 out. NaN when the dataset has no revisit or only one place.
 
-    >>> signature_auc(dataset.signatures, dataset.labels)
-    0.97
+    >>> float(signature_auc([[0.0], [0.1], [1.0], [1.1]], [0, 0, 1, 1]))    # places apart: separable
+    1.0
+    >>> float(signature_auc([[0.5], [0.5], [0.5], [0.5]], [0, 0, 1, 1]))    # every place looks alike: chance
+    0.5
 """
 
 from __future__ import annotations

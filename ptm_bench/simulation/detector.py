@@ -7,9 +7,11 @@ probability ``miss_rate``, and false detections fire with ``false_rate`` per
 metre driven away from every place (farther than twice the radius); a false
 detection is its own place and gets a fresh negative label -1, -2, ...
 
-    >>> detections = detect(trajectory.poses, place_sites(model), radius=1.0, rng=rng)
-    >>> [(d.step, d.place_id) for d in detections][:3]
-    >>> steps = [d.step for d in detections]
+    >>> import numpy as np
+    >>> path = np.column_stack([np.linspace(0.0, 10.0, 101), np.zeros(101)])   # drive 10 m along x
+    >>> detections = detect(path, {0: (2.0, 0.5), 1: (8.0, -0.3)}, radius=1.0, rng=np.random.default_rng(0))
+    >>> [(d.step, d.place_id) for d in detections]
+    [(20, 0), (80, 1)]
 """
 
 from __future__ import annotations

@@ -22,9 +22,12 @@ at their prior variance, so each row's covariance is its marginal (rows share
 s and d, a correlation a per-row covariance cannot carry). A floor of
 ``COVARIANCE_FLOOR`` on the diagonal keeps it positive definite at S = 0.
 
-    >>> model = OdometryNoise().scaled(1.0)
-    >>> steps = sample_odometry(true_poses, model, np.random.default_rng(0))
-    >>> rows, covariances = detection_odometry(steps, [0, 120, 260])
+    >>> import numpy as np
+    >>> true_poses = np.column_stack([np.linspace(0.0, 30.0, 301), np.zeros(301), np.zeros(301)])  # 30 m straight
+    >>> steps = sample_odometry(true_poses, OdometryNoise().scaled(1.0), np.random.default_rng(0))
+    >>> rows, covariances = detection_odometry(steps, [0, 120, 300])
+    >>> rows.shape, covariances.shape
+    ((2, 3), (2, 3, 3))
 """
 
 from __future__ import annotations

@@ -10,9 +10,12 @@ bearing ``pi/8 - 2 pi (c + 0.5) / W`` in the robot frame and turning the robot
 shifts the panorama circularly, which is what makes the Fourier signature
 rotation-invariant.
 
-    >>> stitcher = CylindricalStitcher(RigConfig())
-    >>> panorama = stitcher.stitch(rig.views(qpos))      # (H, 8 * strip_width, 3) uint8
-    >>> fourier_signature(panorama)
+    >>> import numpy as np
+    >>> rig = RigConfig()
+    >>> views = [np.full((rig.image_height, rig.image_width, 3), 30 * k, np.uint8) for k in range(CAMERA_COUNT)]
+    >>> panorama = CylindricalStitcher(rig).stitch(views)      # (H, 8 * strip_width, 3) uint8
+    >>> panorama.shape[0] == rig.image_height, panorama.dtype == np.uint8
+    (True, True)
 """
 
 from __future__ import annotations

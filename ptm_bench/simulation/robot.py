@@ -10,7 +10,8 @@ each with a horizontal field of view slightly above 45 degrees.
 
     >>> rig = RigConfig()
     >>> body_xml, actuator_xml = base_mjcf(rig)       # spliced into the floor's MJCF by scene.py
-    >>> trajectory = drive(model, data, waypoints, speed=1.0)
+    >>> CAMERA_COUNT, rig.image_height, "cam_7" in body_xml
+    (8, 64, True)
 """
 
 from __future__ import annotations

@@ -21,9 +21,13 @@ The near clipping plane is set in metres (``NEAR_PLANE``), not as MuJoCo's
 default share of the model's extent, which put it behind walls the robot
 passes close to.
 
+    >>> import numpy as np
+    >>> from ptm_bench.world.floorplan import load_world, palette_library
     >>> floor = load_world("short_loop")
-    >>> xml = build_mjcf(floor, {pid: palette for pid in floor.places})
-    >>> model = compile_scene(xml)
+    >>> (palette,) = palette_library(1, np.random.default_rng(0))
+    >>> model = compile_scene(build_mjcf(floor, {place_id: palette for place_id in floor.places}))
+    >>> sorted(place_sites(model))
+    [0, 1, 2, 3]
 """
 
 from __future__ import annotations

@@ -10,7 +10,9 @@ implements the aliasing map of docs/model.md §5: P places receive
 
     >>> floor = load_world("nested_loops")
     >>> len(floor.places), round(floor.route_length(), 1)
+    (8, 192.0)
     >>> palette_count(len(floor.places), aliasing=0.5)
+    5
 """
 
 from __future__ import annotations
