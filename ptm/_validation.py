@@ -1,4 +1,4 @@
-"""Boundary checks shared by the library: positive numbers, finite arrays.
+"""Boundary checks shared by the library: counts, positive numbers, finite arrays.
 
 Every public entry point validates its inputs with these helpers so that a bad
 value fails loudly with a message naming the field, instead of producing a
@@ -12,6 +12,13 @@ silently wrong probability.
 from __future__ import annotations
 
 import numpy as np
+
+
+def count(name: str, value, minimum: int) -> int:
+    """Return ``value`` as an int, or raise ``ValueError`` unless it is an integer >= ``minimum`` (not a bool)."""
+    if isinstance(value, bool) or int(value) != value or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
 
 
 def positive(name: str, value) -> float:

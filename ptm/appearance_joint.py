@@ -48,7 +48,7 @@ from ._validation import finite_array, positive
 from .appearance import calibration_groups
 from .partitions import Partition
 
-__all__ = ["JointAppearanceModel", "JointAppearanceTerm", "MultivariateStudentT"]
+__all__ = ["JointAppearanceModel", "JointAppearanceTerm", "MultivariateStudentT", "PlaceStatistics", "FitParametrisation"]
 
 _LOG_PI = math.log(math.pi)
 
@@ -267,8 +267,17 @@ def _log_det(matrix: np.ndarray) -> float:
 # -- empirical Bayes -------------------------------------------------------------------------------
 
 
-class _Statistics:
-    """Per-place sufficient statistics of standardised calibration signatures, stacked for vectorised evidence."""
+class PlaceStatistics:
+    """Per-place sufficient statistics of (standardised) calibration signatures, stacked for the vectorised
+    evidence of :meth:`JointAppearanceModel.fit`: visit counts ``n`` (G,), means ``mean`` (G, K), scatter
+    matrices ``scatter`` (G, K, K), the pooled ``deviations`` from the place means and their degrees of
+    freedom ``dof`` = sum (n - 1).
+
+    Parameters
+    ----------
+    groups : list of (n_g, K) arrays
+        The signatures of each calibration place (:func:`ptm.appearance.calibration_groups`).
+    """
 
     def __init__(self, groups: list[np.ndarray]):
         self.n = np.array([group.shape[0] for group in groups], dtype=float)
@@ -281,7 +290,7 @@ class _Statistics:
         self.constant = float(np.sum(-0.5 * self.n * self.width * _LOG_PI))
 
 
-def _evidence_and_gradient(mu, kappa, nu, psi, data: _Statistics):
+def _evidence_and_gradient(mu, kappa, nu, psi, data: PlaceStatistics):
     """Summed log evidence of the places and its gradient in (mu, kappa, nu, psi)."""
     width, n = data.width, data.n
     d = data.mean - mu
@@ -308,8 +317,15 @@ def _evidence_and_gradient(mu, kappa, nu, psi, data: _Statistics):
     return value, grad_mu, grad_kappa, grad_nu, grad_psi
 
 
-class _Parametrisation:
-    """Unconstrained vector <-> (mu, kappa, nu, psi) for the optimiser, with the chain rule."""
+class FitParametrisation:
+    """Unconstrained vector theta <-> (mu, kappa, nu, psi) for the optimiser of :meth:`JointAppearanceModel.fit`,
+    with the chain rule for the gradient.
+
+    theta = (mu, log kappa, log(nu - K + 1), psi parameters): with ``correlation`` None the psi
+    parameters are the lower triangle of its Cholesky factor (log on the diagonal); with a fixed
+    correlation matrix R they are the log scales D of psi = D R D.
+    :meth:`objective` is the negative summed log evidence times ``weight`` and its gradient in theta.
+    """
 
     def __init__(self, width: int, correlation: np.ndarray | None):
         self.width = width
@@ -319,6 +335,7 @@ class _Parametrisation:
         self.n_psi = width if correlation is not None else self.rows.size
 
     def unpack(self, theta):
+        """(mu, kappa, nu, psi, extra): extra is the Cholesky factor of psi, or the scales D."""
         width = self.width
         mu = theta[:width]
         kappa = math.exp(theta[width])
@@ -332,6 +349,7 @@ class _Parametrisation:
         return mu, kappa, nu, factor @ factor.T, factor
 
     def pack(self, mu, kappa, nu, psi) -> np.ndarray:
+        """theta of (mu, kappa, nu, psi); with a fixed correlation only the diagonal of psi is kept."""
         if self.correlation is not None:
             psi_params = 0.5 * np.log(np.diag(psi))
         else:
@@ -340,7 +358,8 @@ class _Parametrisation:
                                   factor[self.rows, self.cols])
         return np.concatenate([mu, [math.log(kappa), math.log(nu - self.width + 1.0)], psi_params])
 
-    def objective(self, theta, data: _Statistics, weight: float):
+    def objective(self, theta, data: PlaceStatistics, weight: float):
+        """(-weight * log evidence, its gradient in theta); (inf, 0) where psi_n is not positive definite."""
         mu, kappa, nu, psi, extra = self.unpack(theta)
         try:
             value, g_mu, g_kappa, g_nu, g_psi = _evidence_and_gradient(mu, kappa, nu, psi, data)
@@ -372,7 +391,7 @@ def _standardise(groups: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return centre, scale
 
 
-def _ledoit_wolf_correlation(data: _Statistics) -> tuple[np.ndarray, float]:
+def _ledoit_wolf_correlation(data: PlaceStatistics) -> tuple[np.ndarray, float]:
     """Pooled within-place correlation R and the Ledoit-Wolf (2004) intensity of shrinking it towards I."""
     sd = np.sqrt(np.sum(data.deviations ** 2, axis=0) / data.dof)
     sd = np.where(sd > 0, sd, 1.0)
@@ -389,7 +408,7 @@ def _ledoit_wolf_correlation(data: _Statistics) -> tuple[np.ndarray, float]:
 def _fit(cls, groups, shrinkage, max_dof: float) -> JointAppearanceModel:
     width = groups[0].shape[1]
     centre, scale = _standardise(groups)
-    data = _Statistics([(group - centre) / scale for group in groups])
+    data = PlaceStatistics([(group - centre) / scale for group in groups])
     n_covariance = width * (width + 1) // 2
     if isinstance(shrinkage, str):
         if shrinkage != "auto":
@@ -416,7 +435,7 @@ def _fit(cls, groups, shrinkage, max_dof: float) -> JointAppearanceModel:
         except np.linalg.LinAlgError:
             raise ValueError(f"the shrunk within-place correlation (shrinkage {lam:.3g}) is singular; "
                              "use a larger shrinkage or more calibration runs") from None
-    parametrisation = _Parametrisation(width, correlation)
+    parametrisation = FitParametrisation(width, correlation)
 
     # start: mu at the mean of place means, psi = (nu - K - 1) x pooled within-place covariance
     within = np.diag(np.maximum(np.sum(data.deviations ** 2, axis=0) / data.dof, 1e-3))

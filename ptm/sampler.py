@@ -30,10 +30,11 @@ import numpy as np
 from .diagnostics import effective_sample_size, split_rhat
 from .moves import (GibbsReassign, SplitMerge, apply_proposal, initial_state, proposed_log_cheap,
                     proposed_partition)
+from ._validation import count
 from .partitions import Partition
 from .result import PTM
 
-__all__ = ["mcmc", "default_moves", "metropolis_step", "StepInfo", "MoveMixture", "SampleRecorder"]
+__all__ = ["mcmc", "default_moves", "metropolis_step", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder"]
 
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 
@@ -66,17 +67,17 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     delayed_acceptance : bool
         Screen proposals with the cheap terms before evaluating global ones.
     """
-    n_samples = _count("n_samples", n_samples, minimum=1)
-    burn_in = _count("burn_in", burn_in, minimum=0)
-    thin = _count("thin", thin, minimum=1)
-    chains = _count("chains", chains, minimum=1)
+    n_samples = count("n_samples", n_samples, minimum=1)
+    burn_in = count("burn_in", burn_in, minimum=0)
+    thin = count("thin", thin, minimum=1)
+    chains = count("chains", chains, minimum=1)
     mixture = MoveMixture(moves if moves is not None else default_moves())
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     recorder = SampleRecorder(chains, n_samples)
     started = time.perf_counter()
     for chain, chain_seed in enumerate(root.spawn(chains)):
         rng = np.random.default_rng(chain_seed)
-        state = initial_state(posterior, _start_labels(posterior, init, chain, rng))
+        state = initial_state(posterior, start_labels(posterior, init, chain, rng))
         for step in range(burn_in + n_samples * thin):
             state, _ = mixture.step(posterior, state, rng, delayed_acceptance=delayed_acceptance)
             kept, remainder = divmod(step - burn_in + 1, thin)
@@ -201,8 +202,17 @@ class SampleRecorder:
                    traces={"log_prob": self.log_prob, "num_places": self.num_places})
 
 
-def _start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:
-    """The partition chain number ``chain`` starts from."""
+def start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:
+    """The partition chain number ``chain`` starts from (shared by :func:`mcmc` and :func:`ptm.tempered_mcmc`).
+
+    Without ``init`` the chains are dispersed: chain 0, 3, ... starts from all
+    detections distinct, chain 1, 4, ... from all at one place, the others from
+    random labels drawn with ``rng``. ``init`` may be a label sequence (every
+    chain starts there) or a :class:`ptm.PTM` over the first n <= N
+    detections: chain c starts from its (c + 1)-th most probable topology
+    (cycling when it has fewer), each new detection placed by a draw from its
+    conditional under the cheap terms.
+    """
     n = posterior.n
     if init is None:
         if chain % 3 == 0:
@@ -230,23 +240,23 @@ def _draw_placement(posterior, labels: list[int], detection: int, rng) -> int:
     blocks: dict[int, list[int]] = {}
     for index, label in enumerate(labels):
         blocks.setdefault(label, []).append(index)
-    count = len(blocks)
+    places = len(blocks)
     log_weights = []
     candidates = list(blocks) + [max(blocks, default=-1) + 1]
     for label in candidates:
         members = tuple(blocks.get(label, [])) + (detection,)
         gain = posterior.block_score(members) - (posterior.block_score(tuple(blocks[label])) if label in blocks else 0.0)
-        log_weights.append(gain + (0.0 if label in blocks else _new_place_log_odds(posterior, count)))
+        log_weights.append(gain + (0.0 if label in blocks else _new_place_log_odds(posterior, places)))
     log_weights = np.array(log_weights)
     probabilities = np.exp(log_weights - log_weights.max())
     probabilities /= probabilities.sum()
     return candidates[int(rng.choice(len(candidates), p=probabilities))]
 
 
-def _new_place_log_odds(posterior, count: int) -> float:
-    """Prior log-odds of opening place number ``count + 1`` versus joining one (full-N prior)."""
+def _new_place_log_odds(posterior, places: int) -> float:
+    """Prior log-odds of opening place number ``places + 1`` versus joining one (full-N prior)."""
     table = posterior.log_prior_by_size
-    return table[min(count + 1, len(table) - 1)] - table[max(count, 1)]
+    return table[min(places + 1, len(table) - 1)] - table[max(places, 1)]
 
 
 def _weighted_moves(moves):
@@ -262,9 +272,3 @@ def _weighted_moves(moves):
     if not move_list:
         raise ValueError("mcmc needs at least one move")
     return move_list, np.array(weights)
-
-
-def _count(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or int(value) != value or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)

@@ -22,8 +22,9 @@ import time
 
 import numpy as np
 
+from ._validation import count
 from .moves import initial_state
-from .sampler import MoveMixture, SampleRecorder, _count, _start_labels, default_moves
+from .sampler import MoveMixture, SampleRecorder, default_moves, start_labels
 
 __all__ = ["tempered_mcmc"]
 
@@ -39,11 +40,11 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     beta = 1 traces are in the diagnostics, as for :func:`ptm.mcmc`; one
     ladder draws from ``seed`` itself, several from its children.
     """
-    n_samples = _count("n_samples", n_samples, minimum=1)
-    burn_in = _count("burn_in", burn_in, minimum=0)
-    thin = _count("thin", thin, minimum=1)
-    swap_interval = _count("swap_interval", swap_interval, minimum=1)
-    chains = _count("chains", chains, minimum=1)
+    n_samples = count("n_samples", n_samples, minimum=1)
+    burn_in = count("burn_in", burn_in, minimum=0)
+    thin = count("thin", thin, minimum=1)
+    swap_interval = count("swap_interval", swap_interval, minimum=1)
+    chains = count("chains", chains, minimum=1)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
@@ -61,7 +62,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
         replica_seeds = ladder_seed.spawn(betas.size + 1)
         swap_rng = np.random.default_rng(replica_seeds[-1])
         rngs = [np.random.default_rng(s) for s in replica_seeds[:-1]]
-        states = [initial_state(posterior, _start_labels(posterior, init, chain + index, rng))
+        states = [initial_state(posterior, start_labels(posterior, init, chain + index, rng))
                   for index, rng in enumerate(rngs)]
         for step in range(total):
             for index, beta in enumerate(betas):

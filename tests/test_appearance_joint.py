@@ -19,7 +19,7 @@ from scipy.special import logsumexp
 
 import ptm
 from helpers import PLACE_SIGNATURES, TRUE_LABELS_8
-from ptm.appearance_joint import _Parametrisation, _Statistics
+from ptm.appearance_joint import FitParametrisation, PlaceStatistics
 from test_sampler import TOLERANCE, SplitMergeWithoutHastingsRatio, total_variation_to_exact
 
 MU = np.array([0.2, -0.1])
@@ -185,9 +185,9 @@ def test_fit_gradient_matches_finite_differences():
     rng = np.random.default_rng(3)
     dataset = draw_from_the_model(rng, MU, 0.3, 5.0, PSI, places=20, visits=3)
     groups = [dataset.signatures[list(block)] for block in ptm.Partition.from_labels(dataset.labels).blocks]
-    data = _Statistics(groups)
+    data = PlaceStatistics(groups)
     for correlation in (None, np.array([[1.0, 0.4], [0.4, 1.0]])):
-        parametrisation = _Parametrisation(2, correlation)
+        parametrisation = FitParametrisation(2, correlation)
         theta = parametrisation.pack(MU + 0.05, 0.5, 6.0, PSI if correlation is None else np.diag(np.diag(PSI)))
         analytic = parametrisation.objective(theta, data, 1.0)[1]
         numeric = approx_fprime(theta, lambda t: parametrisation.objective(t, data, 1.0)[0], 1e-7)
