@@ -1,6 +1,6 @@
 """The import graph follows the architecture: data flows one way through ptm_bench's layers.
 
-world -> simulation -> evaluation -> reporting -> benchmarks -> cli: a module
+world -> simulation -> logs -> evaluation -> reporting -> benchmarks -> cli: a module
 may import its own layer and the layers before it, never a later one (every
 import counts, also one inside a function). The library ``ptm`` imports
 nothing of the harness, never MuJoCo or OpenCV, and no module of either
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-LAYERS = ("world", "simulation", "evaluation", "reporting", "benchmarks", "cli")
+LAYERS = ("world", "simulation", "logs", "evaluation", "reporting", "benchmarks", "cli")
 
 
 def _modules(package: str) -> dict[str, Path]:
