@@ -19,9 +19,17 @@ is :data:`DEFAULTS`; a variant may override any key of ``[inference]``,
     name = "odometry+appearance"
     models = ["odometry", "appearance"]
 
-    >>> experiment = load_experiment("experiments/exp3_nested.toml")
-    >>> cells = expand_cells(experiment, results_dir=Path("results/exp3_nested"))
+:func:`load_experiment` reads such a file (``load_experiment("experiments/exp3_nested.toml")``);
+:func:`parse_experiment` takes the same content as a dict:
+
+    >>> experiment = parse_experiment({"name": "tiny", "sweep": {"worlds": ["short_loop"], "seeds": [0, 1]},
+    ...                                "variants": [{"name": "appearance", "models": ["appearance"]}]})
+    >>> cells = expand_cells(experiment, results_dir=Path("results/tiny"))
     >>> len(cells), cells[0]["cell_id"]
+    (2, 'short_loop|a=0|noise=1|seed=0|appearance')
+    >>> parse_experiment({"sweep": {"worlds": ["short_loop"], "seeds": [0]}, "inference": {"n_samples": "100"}})
+    Traceback (most recent call last):
+    ValueError: config: inference.n_samples must be a positive integer, got '100'
 """
 
 from __future__ import annotations
@@ -30,6 +38,8 @@ import copy
 import hashlib
 import itertools
 import json
+import math
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,6 +136,8 @@ def parse_experiment(raw: dict, default_name: str = "experiment", source: str = 
             raise ValueError(f"{source}: [{section}] must be a table")
         _reject_unknown(given, defaults, source, f"[{section}]")
         sections[section] = {**copy.deepcopy(defaults), **given}
+    for section in _VALUE_CHECKS:
+        _check_values(sections[section], section, source, "")
     sweep = sections["sweep"]
     for key in ("worlds", "seeds"):
         if not sweep[key]:
@@ -145,6 +157,7 @@ def parse_experiment(raw: dict, default_name: str = "experiment", source: str = 
         raise ValueError(f"{source}: sweep.calibration_seeds must be held out from sweep.seeds; both contain {shared}")
     if not isinstance(sweep["generator_options"], dict):
         raise ValueError(f"{source}: sweep.generator_options must be a table")
+    _check_generator_options(sweep["generator_options"], source)
 
     raw_variants = raw.get("variants") or [{"name": "odometry+appearance", "models": list(MODEL_NAMES)}]
     variants = tuple(_validated_variant(variant, sections, source) for variant in raw_variants)
@@ -161,7 +174,7 @@ def parse_experiment(raw: dict, default_name: str = "experiment", source: str = 
         if variant_name not in names:
             raise ValueError(f"{source}: [paper] names unknown variant {variant_name!r}; variants: {names}")
     return Experiment(
-        name=str(raw.get("name", default_name)),
+        name=_validated_name(raw.get("name", default_name), source),
         description=str(raw.get("description", "")),
         sweep=sweep,
         variants=variants,
@@ -246,6 +259,8 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
             raise ValueError(f"{source}: {where}: '{section}' must be a table")
         _reject_unknown(overrides, DEFAULTS[section], source, f"{where} {section}")
         merged[section] = {**sections[section], **overrides}
+        if section in _VALUE_CHECKS:
+            _check_values(overrides, section, source, f"{where}: ")
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
     _check_choice(merged["inference"]["moves"], ("default", "paper"), f"{where} inference.moves", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
@@ -272,6 +287,87 @@ def _validated_world(world, source: str):
             raise ValueError(f"{source}: a generated world needs a 'name' for the table")
         return dict(world)
     raise ValueError(f"{source}: a world is a name or a table, got {world!r}")
+
+
+def _validated_name(name, source: str) -> str:
+    # The name is a folder under --out: a separator or '..' would write elsewhere.
+    if not isinstance(name, str) or not _NAME_PATTERN.fullmatch(name) or set(name) == {"."}:
+        raise ValueError(f"{source}: name must be a folder name of letters, digits and '_.+-' (no path "
+                         f"separator), got {name!r}")
+    return name
+
+
+def _check_values(section_values: dict, section: str, source: str, where: str) -> None:
+    """The type and range of each set key of an [inference], [odometry] or [appearance] section."""
+    for key, value in section_values.items():
+        check = _VALUE_CHECKS[section].get(key)
+        if check is not None and value is not None and not check[0](value):
+            raise ValueError(f"{source}: {where}{section}.{key} must be {check[1]}, got {value!r}")
+
+
+def _check_generator_options(options: dict, source: str) -> None:
+    """Generator options are keyword arguments of generate_dataset: known names, values of the default's type."""
+    if not options:
+        return
+    import inspect
+
+    from ptm_bench.simulation.generate import generate_dataset  # imported here: it pulls in MuJoCo
+
+    parameters = {name: parameter.default for name, parameter in inspect.signature(generate_dataset).parameters.items()
+                  if parameter.kind is inspect.Parameter.KEYWORD_ONLY and name != "signature_k"}
+    for key, value in options.items():
+        if key not in parameters:
+            raise ValueError(f"{source}: unknown key {key!r} in sweep.generator_options; known keys: "
+                             f"{', '.join(sorted(parameters))} (the number of components is appearance.components)")
+        default = parameters[key]
+        if isinstance(default, (bool, str)) or not isinstance(default, (int, float)):
+            expected = type(default)
+            ok = isinstance(value, expected)
+        else:
+            expected = float
+            ok = _is_number(value)
+        if not ok:
+            raise ValueError(f"{source}: sweep.generator_options.{key} must be a {expected.__name__}, got {value!r}")
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_temperature_ladder(value) -> bool:
+    return (isinstance(value, list) and len(value) >= 2 and all(_is_number(beta) for beta in value)
+            and value[0] == 1.0 and all(a > b for a, b in zip(value, value[1:])) and value[-1] > 0)
+
+
+_NAME_PATTERN = re.compile(r"[A-Za-z0-9_.+-]+")
+
+#: section -> key -> (check, what it must be); keys not listed are checked as choices in _validated_variant.
+_VALUE_CHECKS = {
+    "inference": {
+        "n_samples": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "burn_in": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
+        "thin": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "chains": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "prior_rate": (lambda v: _is_number(v) and v > 0, "a positive number"),
+        "delayed_acceptance": (lambda v: isinstance(v, bool), "true or false"),
+        "exact_max_n": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "temperatures": (_is_temperature_ladder, "a list of inverse temperatures from 1.0 strictly down to a positive value"),
+    },
+    "odometry": {
+        **{key: (lambda v: _is_number(v) and v > 0, "a positive number")
+           for key in ("sigma_xy", "sigma_theta", "sigma_topology", "sigma_topology_factor", "penalty_radius",
+                       "penalty_radius_factor")},
+        "max_penalty": (lambda v: _is_number(v) and v >= 0, "a non-negative number"),
+        "n_importance": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+    },
+    "appearance": {
+        "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+    },
+}
 
 
 def _world_name(world) -> str:
