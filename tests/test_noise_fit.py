@@ -28,12 +28,12 @@ def test_fit_recovers_alphas_and_systematic_errors():
     fit = fit_noise(logs)
     assert fit.model.alpha1 == pytest.approx(0.3, rel=0.1)
     assert fit.model.alpha3 == pytest.approx(0.04, rel=0.15)
-    assert fit.floor_rot < 0.01 and fit.floor_trans < 0.01  # no floor in the simulated noise
+    assert fit.floor_xy < 0.01 and fit.floor_theta < 0.01  # no floor in the simulated noise
     scale, drift = systematic_errors(logs[0])
     assert fit.per_log["sim0"] == {"scans": 3001, "scale_error": round(scale, 6), "heading_drift": round(drift, 6)}
     assert fit.model.scale_sigma == pytest.approx(np.sqrt(np.mean([entry["scale_error"] ** 2 for entry in fit.per_log.values()])))
-    steps = fit.steps(logs[0].raw_increments)
-    assert steps.sigmas.shape == (3000, 3) and np.all(steps.sigmas > 0)
+    rows, covariances = fit.row_covariances(logs[0].raw_increments, [0, 10, 25])
+    assert rows.shape == (2, 3) and np.all(np.linalg.eigvalsh(covariances) > 0)
 
 
 def test_fit_needs_a_log():

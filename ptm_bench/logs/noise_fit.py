@@ -4,30 +4,34 @@ The model is the one that generates the simulator's odometry
 (:mod:`ptm_bench.simulation.odometry_noise`, docs/model.md §5): each scan's
 motion is (rot1, trans, rot2), measured with standard deviations
 
-    sd(rot1)  = sqrt((alpha1 |rot1| + alpha2 trans)^2 + floor_rot^2)
-    sd(trans) = sqrt((alpha3 trans  + alpha4 (|rot1| + |rot2|))^2 + floor_trans^2)
-    sd(rot2)  = sqrt((alpha1 |rot2| + alpha2 trans)^2 + floor_rot^2)
+    sd(rot1)  = alpha1 |rot1| + alpha2 trans
+    sd(trans) = alpha3 trans  + alpha4 (|rot1| + |rot2|)
+    sd(rot2)  = alpha1 |rot2| + alpha2 trans
 
 plus, per run, a translation-scale error s (trans' = (1 + s) trans) and a
-heading drift d [rad/m] (rot2' = rot2 + d trans). The floors are new: they
-absorb the reference's own jitter (GMapping's scan matching) and the logs'
-quantisation, without which a robot standing still would have zero variance.
+heading drift d [rad/m] (rot2' = rot2 + d trans). New here: a *floor*, an
+independent error of sd ``floor_xy`` on dx and dy and ``floor_theta`` on
+dtheta added once per increment, which absorbs the reference's own jitter
+(GMapping's scan matching) and the logs' quantisation. It does not
+accumulate along the odometry: a dataset row composed of many scans gets the
+floor once (:meth:`NoiseFit.row_covariances`).
 
 **Fit.** For each log, s and d are least-squares slopes of the translation
 error and the heading error on the reference translation. The alphas and
 floors are maximum-likelihood estimates over all scans of all logs, with
 each log's own s and d removed: the residual u_k - m_k of the raw
 increment u_k against its mean m_k (the reference increment with s and d
-applied), in (dx, dy, dtheta), is Normal with covariance J diag(sd^2) J^T,
-J the Jacobian of (dx, dy, dtheta) in (rot1, trans, rot2) at the reference.
+applied), in (dx, dy, dtheta), is Normal with covariance
+J diag(sd^2) J^T + diag(floor_xy^2, floor_xy^2, floor_theta^2), J the Jacobian
+of (dx, dy, dtheta) in (rot1, trans, rot2) at the reference.
 The systematic sigmas ``scale_sigma`` and ``drift_sigma`` are the root mean
 squares of the logs' s and d (the spread of the systematic errors between
 robots). A dataset's odometry covariances come from a fit on *other* logs
 (:func:`fit_noise` of those logs), never on the log itself.
 
     >>> fit = fit_noise([read_carmen(shipped_log(name)) for name in ("aces", "fhw", "acapulco")])
-    >>> fit.model.alpha1, fit.floor_rot, fit.per_log["aces"]
-    >>> steps = fit.steps(log.raw_increments)   # ptm_bench.simulation.odometry_noise.OdometrySteps
+    >>> fit.model.alpha1, fit.floor_xy, fit.per_log["aces"]
+    >>> rows, covariances = fit.row_covariances(log.raw_increments, detection_scans)
 """
 
 from __future__ import annotations
@@ -41,11 +45,11 @@ from scipy.optimize import minimize
 from ptm.se2 import wrap_angle
 
 from ptm_bench.logs.carmen import CarmenLog
-from ptm_bench.simulation.odometry_noise import OdometryNoise, OdometrySteps, decompose
+from ptm_bench.simulation.odometry_noise import OdometryNoise, OdometrySteps, decompose, detection_odometry
 
 __all__ = ["NoiseFit", "fit_noise", "log_name", "systematic_errors"]
 
-_XY_JITTER = 1e-6  # [m^2] on the x and y variances of the fit's likelihood: keeps a standing robot's covariance regular
+_JITTER = 1e-10  # on the variances of the fit's likelihood: keeps the covariance regular at any parameters
 
 
 @dataclass(frozen=True)
@@ -53,26 +57,30 @@ class NoiseFit:
     """A fitted odometry noise model: the simulator's parameters, the floors, and what each log contributed."""
 
     model: OdometryNoise  # alpha1..alpha4, scale_sigma, drift_sigma (level 1)
-    floor_rot: float  # [rad] sd added in quadrature to rot1 and rot2
-    floor_trans: float  # [m] sd added in quadrature to trans
+    floor_xy: float  # [m] sd of the independent error on dx and dy of every increment
+    floor_theta: float  # [rad] sd of the independent error on dtheta of every increment
     per_log: dict = field(default_factory=dict)  # log name -> {"scans", "scale_error", "heading_drift"}
 
-    def sigmas(self, rot1, trans, rot2) -> np.ndarray:
-        """(T, 3) standard deviations of (rot1, trans, rot2)."""
-        base = self.model.step_sigmas(rot1, trans, rot2)
-        floors = np.array([self.floor_rot, self.floor_trans, self.floor_rot])
-        return np.sqrt(base ** 2 + floors ** 2)
-
     def steps(self, increments) -> OdometrySteps:
-        """The raw increments with their standard deviations, ready for ``detection_odometry``."""
+        """The raw increments with the standard deviations of their (rot1, trans, rot2), without the floor."""
         increments = np.asarray(increments, dtype=float).reshape(-1, 3)
-        return OdometrySteps(increments, self.sigmas(*decompose(increments)), 0.0, 0.0, self.model)
+        return OdometrySteps(increments, self.model.step_sigmas(*decompose(increments)), 0.0, 0.0, self.model)
+
+    def row_covariances(self, increments, scans) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (K-1, 3) composed of the raw increments between consecutive ``scans``, and their covariances.
+
+        The simulator's linearised propagation of the per-scan noise and of the
+        systematic errors, plus the floor once per row.
+        """
+        rows, covariances = detection_odometry(self.steps(increments), scans)
+        floor = np.diag([self.floor_xy ** 2, self.floor_xy ** 2, self.floor_theta ** 2])
+        return rows, covariances + floor
 
     def as_meta(self) -> dict:
         model = self.model.as_meta()
         model.pop("level")
         return {**{key: round(float(value), 6) for key, value in model.items()},
-                "floor_rot": round(self.floor_rot, 6), "floor_trans": round(self.floor_trans, 6),
+                "floor_xy": round(self.floor_xy, 6), "floor_theta": round(self.floor_theta, 6),
                 "fitted_on": sorted(self.per_log), "per_log": self.per_log}
 
 
@@ -129,15 +137,15 @@ def fit_noise(logs) -> NoiseFit:
     x, y, theta = residual.T
 
     def negative_log_likelihood(log_params):
-        a1, a2, a3, a4, f_rot, f_trans = np.exp(log_params)
-        v1 = (a1 * rot1 + a2 * trans) ** 2 + f_rot ** 2
-        v2 = (a3 * trans + a4 * (rot1 + rot2)) ** 2 + f_trans ** 2
-        v3 = (a1 * rot2 + a2 * trans) ** 2 + f_rot ** 2
+        a1, a2, a3, a4, f_xy, f_theta = np.exp(log_params)
+        v1 = (a1 * rot1 + a2 * trans) ** 2
+        v2 = (a3 * trans + a4 * (rot1 + rot2)) ** 2
+        v3 = (a1 * rot2 + a2 * trans) ** 2
         tv1 = trans * v1
-        cxx = trans * sin * sin * tv1 + cos * cos * v2 + _XY_JITTER
-        cyy = trans * cos * cos * tv1 + sin * sin * v2 + _XY_JITTER
+        cxx = trans * sin * sin * tv1 + cos * cos * v2 + f_xy ** 2 + _JITTER
+        cyy = trans * cos * cos * tv1 + sin * sin * v2 + f_xy ** 2 + _JITTER
         cxy = cos * sin * (v2 - trans * tv1)
-        cxt, cyt, ctt = -sin * tv1, cos * tv1, v1 + v3
+        cxt, cyt, ctt = -sin * tv1, cos * tv1, v1 + v3 + f_theta ** 2 + _JITTER
         # cofactors of the symmetric 3 x 3 matrix [[cxx, cxy, cxt], [cxy, cyy, cyt], [cxt, cyt, ctt]]
         k00, k01, k02 = cyy * ctt - cyt * cyt, cxt * cyt - cxy * ctt, cxy * cyt - cxt * cyy
         k11, k12, k22 = cxx * ctt - cxt * cxt, cxy * cxt - cxx * cyt, cxx * cyy - cxy * cxy
@@ -150,10 +158,10 @@ def fit_noise(logs) -> NoiseFit:
     result = minimize(negative_log_likelihood, start, method="L-BFGS-B", bounds=[(-16.0, 2.0)] * 6)
     if not np.isfinite(result.fun):
         raise ValueError(f"odometry noise fit failed on {sorted(per_log)}: {result.message}")
-    a1, a2, a3, a4, f_rot, f_trans = (float(value) for value in np.exp(result.x))
+    a1, a2, a3, a4, f_xy, f_theta = (float(value) for value in np.exp(result.x))
     scales = np.array([entry["scale_error"] for entry in per_log.values()])
     drifts = np.array([entry["heading_drift"] for entry in per_log.values()])
     model = OdometryNoise(alpha1=a1, alpha2=a2, alpha3=a3, alpha4=a4,
                           scale_sigma=float(np.sqrt(np.mean(scales ** 2))),
                           drift_sigma=float(np.sqrt(np.mean(drifts ** 2))), level=1.0)
-    return NoiseFit(model=model, floor_rot=f_rot, floor_trans=f_trans, per_log=per_log)
+    return NoiseFit(model=model, floor_xy=f_xy, floor_theta=f_theta, per_log=per_log)

@@ -1,0 +1,77 @@
+"""Detections from a recorded log: deterministic places, closest-approach detections, raw odometry rows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ptm
+from ptm.se2 import dead_reckoning, relative_pose
+
+from ptm_bench.logs.carmen import CarmenLog
+from ptm_bench.logs.detections import choose_places, import_carmen, log_dataset
+from ptm_bench.logs.noise_fit import NoiseFit
+from ptm_bench.simulation.odometry_noise import OdometryNoise
+
+NOISE = NoiseFit(model=OdometryNoise(), floor_xy=0.01, floor_theta=0.005, per_log={"other": {}})
+
+
+def _square_log(laps: int = 2, side: float = 10.0, step: float = 0.5) -> CarmenLog:
+    """A square of 10 m sides driven ``laps`` times; the raw odometry turns 1 % more than the reference."""
+    per_side = int(side / step)
+    one_side = [[step, 0.0, 0.0]] * (per_side - 1) + [[step, 0.0, np.pi / 2]]
+    reference_steps = np.array(one_side * 4 * laps)
+    reference = dead_reckoning(reference_steps)
+    raw = reference_steps * [1.0, 1.0, 1.01]
+    n = len(reference)
+    return CarmenLog(source="square.log", form="plain", timestamps=np.arange(n, dtype=float),
+                     ranges=tuple(np.full(180, 3.0 + (k % 40) / 10) for k in range(n)), scan_poses=reference,
+                     raw_increments=raw, reference=reference, lines=np.arange(1, n + 1))
+
+
+def test_places_are_greedy_in_time_order_and_spaced():
+    line = np.column_stack([np.linspace(0, 20, 41), np.zeros(41)])
+    places = choose_places(line, 5.0)
+    assert places == {0: (0.0, 0.0), 1: (5.5, 0.0), 2: (11.0, 0.0), 3: (16.5, 0.0)}
+
+
+def test_dataset_of_a_square_driven_twice():
+    log = _square_log()
+    dataset = log_dataset(log, NOISE, place_spacing=5.0, detection_radius=1.0)
+    assert isinstance(dataset, ptm.Dataset)
+    places = len(dataset.meta["places"])
+    assert places == 6 and dataset.n == 2 * places + 1  # every place once per lap, and the start again at the end
+    np.testing.assert_array_equal(dataset.labels, list(range(6)) * 2 + [0])
+    scans = np.array(dataset.meta["scans"])
+    np.testing.assert_allclose(dataset.true_poses, log.reference[scans])
+    raw_poses = dead_reckoning(log.raw_increments)
+    np.testing.assert_allclose(dataset.odometry, relative_pose(raw_poses[scans[:-1]], raw_poses[scans[1:]]), atol=1e-12)
+    assert dataset.odometry_cov.shape == (dataset.n - 1, 3, 3)
+    assert dataset.signatures.shape == (dataset.n, 5)
+    assert dataset.meta["detection_radius"] == 1.0 and dataset.meta["odometry_noise"]["fitted_on"] == ["other"]
+
+
+@pytest.mark.parametrize("spacing, radius, message", [
+    (60.0, 1.0, r"place_spacing 60 m yields 1 place"),
+    (5.0, 3.0, r"detection_radius 3 m exceeds half the place_spacing"),
+    (-1.0, 0.1, r"place_spacing must be positive"),
+])
+def test_bad_parameters_are_refused(spacing, radius, message):
+    with pytest.raises(ValueError, match=message):
+        log_dataset(_square_log(laps=1), NOISE, place_spacing=spacing, detection_radius=radius)
+
+
+def test_noise_fitted_on_the_log_itself_is_refused():
+    own = NoiseFit(model=OdometryNoise(), floor_xy=0.01, floor_theta=0.005, per_log={"square": {}})
+    with pytest.raises(ValueError, match="fitted on square itself"):
+        log_dataset(_square_log(), own)
+    with pytest.raises(ValueError, match="include aces itself"):
+        import_carmen("aces", calibration=["fhw", "aces"])
+
+
+def test_shipped_log_defaults():
+    """ACES with the defaults: 55 detections of 40 places; the noise comes from the three other logs."""
+    dataset = import_carmen("aces")
+    assert dataset.n == 55 and len(set(dataset.labels)) == 40
+    assert dataset.meta["odometry_noise"]["fitted_on"] == ["acapulco", "fhw", "intel"]
+    assert np.all(np.linalg.eigvalsh(dataset.odometry_cov) > 0)
