@@ -48,11 +48,12 @@ def test_the_wheel_ships_the_preset_worlds(wheel):
 def test_an_installed_wheel_runs_from_an_empty_folder(wheel, tmp_path):
     """A non-editable install (dependencies from this environment) lists and loads the worlds anywhere."""
     environment_dir = tmp_path / "venv"
-    venv.create(environment_dir, system_site_packages=True, with_pip=False)
+    venv.create(environment_dir, system_site_packages=True, with_pip=True)
     python = environment_dir / "bin" / "python"
-    # pip of this interpreter installs into the new environment's site-packages through --prefix.
-    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet", "--prefix", str(environment_dir),
-                    "--no-warn-script-location", str(wheel)], check=True, capture_output=True)
+    # The environment's own pip: it installs the wheel into the environment and leaves the editable install
+    # of this checkout outside it alone ("outside environment"); pip --prefix from here would uninstall it.
+    subprocess.run([str(python), "-m", "pip", "install", "--no-deps", "--no-index", "--quiet", str(wheel)],
+                   check=True, capture_output=True)
     empty = tmp_path / "elsewhere"
     empty.mkdir()
     env = {key: value for key, value in os.environ.items() if key not in ("PYTHONPATH",)}
@@ -63,9 +64,7 @@ def test_an_installed_wheel_runs_from_an_empty_folder(wheel, tmp_path):
     shown = subprocess.run([str(python), "-I", "-c", code], cwd=empty, env=env, capture_output=True, text=True)
     assert shown.returncode == 0, shown.stderr
     assert "'nested_loops', 'office', 'short_loop'] office" in shown.stdout
-    # The ptm-bench script's entry point, run by the environment's interpreter (pip --prefix writes the
-    # script with this interpreter's shebang).
-    listed = subprocess.run([str(python), "-I", "-c", "import sys; from ptm_bench.cli import main; sys.exit(main(['worlds']))"],
-                            cwd=empty, env=env, capture_output=True, text=True)
+    listed = subprocess.run([str(environment_dir / "bin" / "ptm-bench"), "worlds"], cwd=empty, env=env,
+                            capture_output=True, text=True)
     assert listed.returncode == 0, listed.stderr
     assert "office" in listed.stdout and "nested_loops" in listed.stdout
