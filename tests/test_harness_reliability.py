@@ -47,3 +47,271 @@ def test_good_values_and_generator_options_still_load(tmp_path):
                   '[inference]\nn_samples = 10\ndelayed_acceptance = false\n[odometry]\nmax_penalty = 0\n')
     assert config.name == "ok_1.2"
     assert config.settings["inference"]["delayed_acceptance"] is False
+
+
+# -- the sweep engine: tables of other experiments, locks, killed and interrupted runs ---------------------------
+
+import os  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from ptm_bench.cli import main  # noqa: E402
+from ptm_bench.cli.run import failure_report  # noqa: E402
+from ptm_bench.evaluation import sweep  # noqa: E402
+from ptm_bench.evaluation.datacache import dataset_for, dataset_path  # noqa: E402
+
+TESTS = Path(__file__).resolve().parent
+REPOSITORY = TESTS.parent
+
+
+def cells_of(name, seeds=range(3), **extra):
+    return [{"cell_id": f"seed={seed}", "experiment": name, "seed": seed, **extra} for seed in seeds]
+
+
+def alive(pid: int) -> bool:
+    """Running (a zombie, ended but not yet reaped, counts as gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+def wait_for(condition, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_a_table_of_another_experiment_is_never_overwritten(tmp_path):
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(cells_of("exp1_penalty"), dict, path, workers=1, progress=False)
+    before = path.read_bytes()
+    for fresh in (False, True):
+        with pytest.raises(ValueError, match="holds the table of experiment exp1_penalty, not of demo"):
+            sweep.run_sweep(cells_of("demo"), dict, path, workers=1, fresh=fresh, progress=False)
+    assert path.read_bytes() == before
+    (tmp_path / "notes.csv").write_text("a,b\n1,2\n")  # a CSV that is no sweep table at all
+    with pytest.raises(ValueError, match="no cell_id column"):
+        sweep.run_sweep(cells_of("demo"), dict, tmp_path / "notes.csv", workers=1, progress=False)
+    (tmp_path / "broken.csv").write_bytes(b"cell_id,x\n\"unterminated\n")
+    with pytest.raises(ValueError, match="broken.csv is not a readable sweep table"):
+        sweep.read_table(tmp_path / "broken.csv")
+
+
+def test_a_fresh_sweep_recomputes_its_own_experiment_and_drops_its_old_rows(tmp_path):
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(cells_of("demo", seeds=[0, 1]), dict, path, workers=1, progress=False)
+    table = sweep.run_sweep(cells_of("demo", seeds=[5]), dict, path, workers=1, fresh=True, progress=False)
+    assert list(table["cell_id"]) == ["seed=5"]
+
+
+def test_the_demo_refuses_an_out_holding_another_experiments_table(tmp_path, capsys):
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(cells_of("exp1_penalty"), dict, path, workers=1, progress=False)
+    before = path.read_bytes()
+    assert main(["demo", "--world", "short_loop", "--out", str(tmp_path)]) == 2
+    assert "holds the table of experiment exp1_penalty" in capsys.readouterr().err
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cells.csv"]
+
+
+def test_a_second_run_of_a_table_is_refused_and_a_dead_runs_lock_is_taken_over(tmp_path):
+    path = tmp_path / "cells.csv"
+    with sweep.table_lock(path) as lock:
+        assert lock.read_text().split()[0] == str(os.getpid())
+        with pytest.raises(ValueError, match=rf"being written by another run \(pid {os.getpid()} on "):
+            sweep.run_sweep(cells_of("t"), dict, path, workers=1, progress=False)
+    assert not lock.exists()
+    lock.write_text("999999999 elsewhere\n")  # left by a run that was killed: nobody holds it
+    table = sweep.run_sweep(cells_of("t"), dict, path, workers=1, progress=False)
+    assert len(table) == 3 and not lock.exists()
+
+
+def test_zero_workers_are_refused():
+    with pytest.raises(ValueError, match="workers must be a positive number of processes, got 0"):
+        sweep.run_sweep(cells_of("t"), dict, "unused.csv", workers=0, progress=False)
+
+
+KILLED_SWEEP = """
+import sys
+sys.path.insert(0, {tests!r})
+from ptm_bench.evaluation import sweep
+from sweep_fakes import sleepy_cell
+if __name__ == "__main__":
+    cells = [{{"cell_id": str(i), "experiment": "t", "seed": i, "sleep": 0 if i == 0 else 60, "pid_dir": {folder!r}}}
+             for i in range(4)]
+    sweep.run_sweep(cells, sleepy_cell, {folder!r} + "/cells.csv", workers=2, progress=False)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_sigkilled_sweep_takes_its_workers_along_and_a_rerun_resumes(tmp_path):
+    script = tmp_path / "sweep.py"
+    script.write_text(KILLED_SWEEP.format(tests=str(TESTS), folder=str(tmp_path)))
+    process = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path, stderr=subprocess.PIPE)
+    try:
+        # cell 0 is finished and two sleeping cells run
+        assert wait_for(lambda: len(list(tmp_path.glob("*.pid"))) >= 3 and (tmp_path / "cells.csv").is_file())
+        workers = [int(p.stem) for p in tmp_path.glob("*.pid")]
+        with pytest.raises(ValueError, match=rf"pid {process.pid} on "):
+            sweep.run_sweep(cells_of("t"), dict, tmp_path / "cells.csv", workers=1, progress=False)
+        process.kill()
+        process.wait()
+        assert wait_for(lambda: not any(alive(pid) for pid in workers), timeout=5), "orphaned workers"
+        assert b"Traceback" not in process.stderr.read()
+    finally:
+        process.kill()
+        process.wait()
+        process.stderr.close()
+    table = sweep.read_table(tmp_path / "cells.csv")
+    assert table["cell_id"].tolist() == [0] and table["status"].tolist() == ["ok"]
+    # the lock of the killed run is taken over; its finished cell is kept
+    cells = [{"cell_id": str(i), "experiment": "t", "seed": i} for i in range(4)]
+    table = sweep.run_sweep(cells, dict, tmp_path / "cells.csv", workers=2, progress=False)
+    assert (table["status"] == "ok").all() and table.loc[0, "slept"] == 0
+
+
+RUN_WITH_FAKE_CELLS = """
+import sys
+sys.path.insert(0, {tests!r})
+import ptm_bench.cli.run
+from sweep_fakes import {cell}
+ptm_bench.cli.run.run_cell = {cell}
+from ptm_bench.cli import main
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
+"""
+
+SMALL_CONFIG = 'name = "small"\n[sweep]\nworlds = ["short_loop"]\nseeds = [0, 1, 2]\ncalibration_seeds = [10]\n'
+
+
+def run_command(tmp_path, cell, *arguments, **options):
+    script = tmp_path / "ptm_bench_fake.py"
+    script.write_text(RUN_WITH_FAKE_CELLS.format(tests=str(TESTS), cell=cell))
+    return subprocess.Popen([sys.executable, str(script), *arguments], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **options)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_ctrl_c_ends_a_run_with_one_line_on_how_to_resume_and_the_table_intact(tmp_path):
+    (tmp_path / "small.toml").write_text(SMALL_CONFIG)
+    folder = tmp_path / "out" / "small"
+    process = run_command(tmp_path, "sleepy_run_cell", "run", "small.toml", "--out", "out", "--workers", "2",
+                          "--no-progress", start_new_session=True)
+    try:
+        assert wait_for(lambda: len(list(folder.glob("*.pid"))) >= 3 and (folder / "cells.csv").is_file())
+        workers = [int(p.stem) for p in folder.glob("*.pid")]
+        os.killpg(process.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        process.kill()
+    assert process.returncode == 130
+    assert "Traceback" not in stderr and "leaked" not in stderr, stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines == [f"ptm-bench run: interrupted; every finished cell is in {Path('out/small/cells.csv')}; "
+                     "rerun `ptm-bench run small.toml --out out` to resume"]
+    assert wait_for(lambda: not any(alive(pid) for pid in workers), timeout=5)
+    table = sweep.read_table(folder / "cells.csv")
+    assert table["seed"].tolist() == [0] and table["status"].tolist() == ["ok"]
+    assert not (folder / "cells.csv.lock").exists()
+
+
+def test_failed_cells_are_summarised_with_the_retry_command():
+    import pandas as pd
+
+    table = pd.DataFrame({"status": ["ok", "error", "error", "error"],
+                          "error": ["", "ValueError: no signal", "ValueError: no signal", "KilledWorker: x"]})
+    report = failure_report(table, "ptm-bench run x.toml --out results --retry-failed")
+    assert "  2 cells: ValueError: no signal" in report and "  1 cell: KilledWorker: x" in report
+    assert report.endswith("rerun only those cells: ptm-bench run x.toml --out results --retry-failed")
+
+
+# -- the command line: bad options fail at once, naming the option ------------------------------------------------
+
+def test_zero_workers_are_refused_on_the_command_line(tmp_path, capsys):
+    for command in (["demo"], ["run", "x.toml"]):
+        with pytest.raises(SystemExit) as stop:
+            main([*command, "--workers", "0", "--out", str(tmp_path)])
+        assert stop.value.code == 2
+        assert "--workers: must be a positive number of processes, got '0'" in capsys.readouterr().err
+
+
+def test_an_out_that_is_a_file_or_cannot_be_created_is_refused(tmp_path, capsys):
+    config = tmp_path / "small.toml"
+    config.write_text(SMALL_CONFIG)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    assert main(["run", str(config), "--out", str(a_file)]) == 2
+    assert f"--out {a_file} is a file, not a folder" in capsys.readouterr().err
+    assert main(["demo", "--out", str(a_file)]) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err
+    assert main(["speed", "--section", "core", "--out", str(a_file)]) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err
+    if sys.platform.startswith("linux"):
+        assert main(["run", str(config), "--out", "/proc/ptm_bench_test"]) == 2
+        assert "--out /proc/ptm_bench_test: cannot create the folder" in capsys.readouterr().err
+
+
+def test_speed_refuses_to_overwrite_a_file_that_is_not_its_table(tmp_path, capsys):
+    (tmp_path / "speed.csv").write_text("cell_id,gt_mass\nx,1\n")
+    assert main(["speed", "--section", "core", "--out", str(tmp_path)]) == 2
+    assert "is not a speed table" in capsys.readouterr().err
+    assert (tmp_path / "speed.csv").read_text() == "cell_id,gt_mass\nx,1\n"
+
+
+def test_a_dead_scheduler_is_reported_at_once(tmp_path):
+    pytest.importorskip("distributed")
+    started = time.monotonic()
+    with pytest.raises(ValueError, match=r"scheduler 'tcp://127.0.0.1:1': no Dask scheduler answered within 1 s"):
+        sweep.run_sweep(cells_of("t"), dict, tmp_path / "cells.csv", scheduler="tcp://127.0.0.1:1",
+                        connect_timeout=1, progress=False)
+    assert time.monotonic() - started < 15
+
+
+@pytest.mark.parametrize("command, promises", [
+    ("run", ["OUT/NAME/", "cells.csv", "summary.md", "docs/model.md section 6", "experiment.DEFAULTS", "resumes"]),
+    ("demo", ["results/demo", "cells.csv", "summary.md", "docs/model.md section 6", "experiment.DEFAULTS",
+              "another experiment's"]),
+    ("speed", ["speed.csv", "core", "simulator", "odometry", "evaluation", "docs/model.md section 6"]),
+])
+def test_help_says_where_output_goes_what_each_section_is_and_where_keys_are_documented(command, promises, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = capsys.readouterr().out
+    for promise in promises:
+        assert promise in text
+
+
+# -- corrupted files -------------------------------------------------------------------------------------------
+
+def corrupt(kind: str, path: Path) -> None:
+    import json
+
+    import numpy as np
+
+    import ptm
+
+    if kind == "truncated":
+        ptm.Dataset(signatures=np.arange(12.0).reshape(4, 3)).save(path)
+        path.write_bytes(path.read_bytes()[:-40])
+    elif kind == "renamed .npy":
+        np.save(path.with_suffix(".npy"), np.arange(4.0))
+        path.with_suffix(".npy").rename(path)
+    elif kind == "bad meta":
+        np.savez(path, signatures=np.arange(12.0).reshape(4, 3), meta=np.array(json.dumps({"a": 1})[:-1]))
+    else:
+        path.write_bytes(b"not a zip file at all")
+
+
+@pytest.mark.parametrize("kind", ["truncated", "renamed .npy", "bad meta", "garbage"])
+def test_a_corrupted_cached_dataset_is_an_error_naming_the_file(tmp_path, kind):
+    path = dataset_path("short_loop", 0.0, 1.0, 0, cache_dir=tmp_path)
+    corrupt(kind, path)
+    with pytest.raises(ValueError, match=rf"cached dataset {path} is unreadable .*delete it"):
+        dataset_for("short_loop", 0.0, 1.0, 0, cache_dir=tmp_path)

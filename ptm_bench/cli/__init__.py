@@ -13,6 +13,8 @@ import argparse
 import importlib
 import sys
 
+from ptm_bench.cli.options import RESUME_HINT
+
 # Modules that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
     "ptm_bench.cli.demo",
@@ -47,6 +49,14 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as error:  # bad input; a programming error keeps its traceback
         print(f"ptm-bench {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # the machine refused (a full disk, a permission): no traceback, the file named
+        where = f" {error.filename}" if error.filename else ""
+        print(f"ptm-bench {args.command}: error:{where} {error.strerror or error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback; what was finished is kept
+        hint = getattr(args, RESUME_HINT, None)
+        print(f"\nptm-bench {args.command}: interrupted{f'; {hint}' if hint else ''}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

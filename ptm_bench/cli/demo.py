@@ -20,11 +20,13 @@ experiment machinery of ``ptm-bench run`` on the embedded config
 
 from __future__ import annotations
 
+import argparse
 import copy
 import json
 import time
 from pathlib import Path
 
+from ptm_bench.cli.options import RESUME_HINT, output_folder, positive_int
 from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import DEMO_CONFIG, expand_cells, parse_experiment
 from ptm_bench.evaluation.sweep import run_sweep
@@ -32,13 +34,33 @@ from ptm_bench.reporting.plots import topology_string
 from ptm_bench.reporting.summary import write_summary
 
 
+DESCRIPTION = """\
+The whole pipeline on a small simulated world: simulate one run, calibrate on two
+held-out runs, sample the posterior over topologies with odometry alone and with
+odometry + appearance, run the two threshold baselines, score everything against
+the ground truth and print it.
+
+Output goes to OUT (default results/demo):
+  cells.csv        one row per method (scores, parameters and their sources)
+  summary.md       the scores as a table, with the calibration section
+  *.png            figures: trajectory, top-5 topologies, ground-truth mass
+  datasets/        the simulated runs (cached)
+The demo recomputes every time; it refuses an OUT that holds another experiment's
+table (e.g. results/exp1_penalty), and writes nothing there.
+
+It is `ptm-bench run` on the embedded config ptm_bench.evaluation.experiment.DEMO_CONFIG;
+config keys and their defaults: docs/model.md section 6 and
+ptm_bench.evaluation.experiment.DEFAULTS."""
+
+
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("demo", help="the whole pipeline on a small simulated world (about a minute)")
+    parser = subparsers.add_parser("demo", help="the whole pipeline on a small simulated world (about a minute)",
+                                   description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--world", default="nested_loops", help="world preset (default: nested_loops)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated run (default: 0)")
     parser.add_argument("--aliasing", type=float, default=0.0, help="0: all places look different; 1: all alike")
     parser.add_argument("--noise", type=float, default=1.0, help="odometry noise level (default: 1.0)")
-    parser.add_argument("--workers", type=int, default=2, help="local processes (default: 2)")
+    parser.add_argument("--workers", type=positive_int, default=2, help="local processes (default: 2)")
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder (default: results/demo)")
     parser.set_defaults(handler=run)
 
@@ -47,14 +69,16 @@ def run(args) -> int:
     config = copy.deepcopy(DEMO_CONFIG)
     config["sweep"].update(worlds=[args.world], aliasing=[args.aliasing], noise=[args.noise], seeds=[args.seed])
     experiment = parse_experiment(config, source="ptm-bench demo")
+    output_folder(args.out, "--out")
     cells = expand_cells(experiment, args.out)
     print(f"Simulating {args.world} (aliasing {args.aliasing:g}, noise {args.noise:g}, seed {args.seed}), "
           f"calibrating on held-out seeds {experiment.sweep['calibration_seeds']}, "
           f"and running {len(cells)} inferences on {args.workers} processes...")
     started = time.perf_counter()
-    # A fresh table each time: the demo always recomputes (a sweep would resume instead).
-    (args.out / "cells.csv").unlink(missing_ok=True)
-    table = run_sweep(cells, run_cell, args.out / "cells.csv", workers=args.workers, progress=True)
+    # A fresh table each time: the demo always recomputes (a sweep would resume instead). The sweep refuses
+    # a table of another experiment before it drops a row.
+    setattr(args, RESUME_HINT, "the demo starts afresh when rerun")
+    table = run_sweep(cells, run_cell, args.out / "cells.csv", workers=args.workers, fresh=True, progress=True)
     failed = table[table["status"] != "ok"]
     for _, row in failed.iterrows():
         print(f"  {row['variant']} failed: {row['error']}")

@@ -11,8 +11,10 @@ Dask distributed cluster with ``--scheduler ADDRESS`` (``pip install 'ptm[dask]'
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
+from ptm_bench.cli.options import RESUME_HINT, output_folder, positive_int
 from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import describe, expand_cells, load_experiment
 from ptm_bench.evaluation.sweep import run_sweep
@@ -21,12 +23,35 @@ from ptm_bench.reporting.summary import aggregate, current_rows, markdown_table,
 SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
 
 
+DESCRIPTION = """\
+Run an experiment config as a resumable sweep: worlds x aliasing x noise x seeds x
+(variants + baselines), one cell each, then write the summary and figures.
+
+Output goes to OUT/NAME/ (NAME: the config's 'name', default its file name):
+  cells.csv        one row per cell (scores, parameters and their sources, status, error)
+  cells.csv.lock   while a run writes the table: its pid (a second run is refused)
+  summary.md       the table per condition and variant, the paper's figures, calibration
+  *.png            figures; datasets/ caches the simulated runs
+
+Cells already in cells.csv are skipped, so an interrupted run (Ctrl-C, a kill)
+resumes where it stopped; cells whose config changed are recomputed.
+
+Config sections ([sweep], [inference], [odometry], [appearance], [[variants]],
+baselines, [paper]) and every key with its default: docs/model.md section 6 and
+ptm_bench.evaluation.experiment.DEFAULTS
+(python3 -c "import ptm_bench.evaluation.experiment as e; print(e.DEFAULTS)")."""
+
+
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("run", help="run an experiment config (a resumable sweep) and write its summary")
+    parser = subparsers.add_parser("run", help="run an experiment config (a resumable sweep) and write its summary",
+                                   description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                   epilog="example: ptm-bench run experiments/exp3_nested.toml --workers 2")
     parser.add_argument("config", type=Path, help="an experiment config, e.g. experiments/exp3_nested.toml")
-    parser.add_argument("--out", type=Path, default=Path("results"), help="results folder (default: results)")
-    parser.add_argument("--workers", type=int, default=None, help="local processes (default: number of CPUs)")
-    parser.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, instead of local processes")
+    parser.add_argument("--out", type=Path, default=Path("results"),
+                        help="results folder; the experiment writes OUT/NAME/ (default: results)")
+    parser.add_argument("--workers", type=positive_int, default=None, help="local processes (default: number of CPUs)")
+    parser.add_argument("--scheduler", default=None,
+                        help="Dask distributed scheduler address (tcp://host:8786), instead of local processes")
     parser.add_argument("--retry-failed", action="store_true", help="rerun cells that ended in an error")
     parser.add_argument("--no-figures", action="store_true", help="write summary.md without drawing figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -35,9 +60,12 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     experiment = load_experiment(args.config)
-    results_dir = args.out / experiment.name
+    output_folder(args.out, "--out")
+    results_dir = output_folder(args.out / experiment.name, "--out")
     cells = expand_cells(experiment, results_dir)
     print(describe(experiment))
+    setattr(args, RESUME_HINT, f"every finished cell is in {results_dir / 'cells.csv'}; "
+                               f"rerun `ptm-bench run {args.config} --out {args.out}` to resume")
     table = run_sweep(cells, run_cell, results_dir / "cells.csv", workers=args.workers, scheduler=args.scheduler,
                       retry_failed=args.retry_failed, progress=not args.no_progress)
     if table.attrs.get("recomputed_changed"):
@@ -54,4 +82,15 @@ def run(args) -> int:
         print(markdown_table(summary[SHOWN_COLUMNS]))
     failed = int((table["status"] != "ok").sum())
     print(f"\n{len(table) - failed} cells finished, {failed} failed; table {results_dir / 'cells.csv'}, summary {summary_path}")
+    if failed:
+        print(failure_report(table, f"ptm-bench run {args.config} --out {args.out} --retry-failed"))
     return 0 if failed == 0 else 1
+
+
+def failure_report(table, retry_command: str, shown: int = 3) -> str:
+    """The distinct errors of the failed cells (most frequent first), and how to rerun only those cells."""
+    errors = table.loc[table["status"] != "ok", "error"].fillna("").astype(str).value_counts()
+    lines = [f"  {count} cell{'s' if count > 1 else ''}: {error}" for error, count in errors.head(shown).items()]
+    if len(errors) > shown:
+        lines.append(f"  ... and {len(errors) - shown} other errors (column 'error' of the table)")
+    return "\n".join(["failed cells:", *lines, f"fix the cause, then rerun only those cells: {retry_command}"])

@@ -18,11 +18,13 @@ ratios within one run, not absolute times across machines.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import platform
 from pathlib import Path
 
 from ptm.dataset import atomic_write
+from ptm_bench.cli.options import output_folder
 
 # section name -> "module:function"; each function takes the parsed args and returns row dicts.
 SECTIONS = {
@@ -45,16 +47,15 @@ def run(args) -> int:
     unknown = [name for name in names if name not in SECTIONS]
     if unknown:
         raise ValueError(f"unknown section(s) {unknown}; known: {sorted(SECTIONS)}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(Path(args.out), "--out")
+    path = out / "speed.csv"
+    previous = _previous_rows(path)  # read before the (long) measurements: a foreign file is refused at once
     rows = []
     for name in names:
         print(f"[speed] running section {name} ...", flush=True)
         rows.extend(_section_function(name)(args))
     frame = pd.DataFrame(rows, columns=["section", "metric", "n", "value", "unit"])
     frame["machine"] = f"{platform.node()} {platform.processor() or platform.machine()}"
-    path = out / "speed.csv"
-    previous = pd.read_csv(path) if path.is_file() else None
     if previous is not None:  # keep other sections' rows from earlier runs
         previous = previous[~previous["section"].isin(names)]
         frame = pd.concat([previous, frame], ignore_index=True)
@@ -65,8 +66,47 @@ def run(args) -> int:
     return 0
 
 
+def _previous_rows(path: Path):
+    """The rows of an earlier speed.csv, None if there is none; ``ValueError`` for a file that is not one."""
+    import pandas as pd
+
+    if not path.exists():
+        return None
+    try:
+        previous = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, IsADirectoryError) as error:
+        raise ValueError(f"{path} is not a speed table ({type(error).__name__}); refusing to overwrite it") from None
+    missing = {"section", "metric", "n", "value", "unit"} - set(previous.columns)
+    if missing:
+        raise ValueError(f"{path} is not a speed table (no column {', '.join(sorted(missing))}); refusing to overwrite it")
+    return previous
+
+
+DESCRIPTION = """\
+Throughput benchmarks. Output: OUT/speed.csv (default results/speed.csv), one row
+per measurement: section, metric, n, value, unit, machine. Rows of the sections
+run now replace their earlier rows; other sections' rows are kept.
+
+Sections (all by default; pick with --section, repeatable):
+  core        Metropolis-Hastings steps per second on appearance-only posteriors
+              (N = 10, 50, 100; split/merge alone and the default move mix), and
+              exact enumeration at N = 10 (Bell(10) = 115 975 partitions)
+  simulator   panoramas rendered and stitched per second; generate_dataset end to
+              end for each preset world
+  odometry    one log P(O | T) evaluation on a cache miss at N = 10 ... 200; cache
+              hit rate, weights' ESS and steps per second with and without
+              delayed acceptance at N = 50
+  evaluation  the sweep's overhead per cell, scoring time, one demo cell end to end
+
+Timings are single-process; compare ratios within one run, not absolute times
+across machines. The sections' code: ptm_bench.benchmarks; the models' settings
+they use are the defaults of docs/model.md section 6 and
+ptm_bench.evaluation.experiment.DEFAULTS."""
+
+
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("speed", help="throughput benchmarks -> results/speed.csv")
+    parser = subparsers.add_parser("speed", help="throughput benchmarks -> results/speed.csv",
+                                   description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--section", action="append", help="section to run (repeatable); default all")
     parser.add_argument("--out", default="results", help="folder for speed.csv (default: results)")
     parser.add_argument("--scale", type=float, default=1.0,

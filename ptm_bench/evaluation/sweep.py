@@ -27,21 +27,47 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
 * With ``scheduler`` (a Dask distributed address) cells become Dask tasks;
   Dask reschedules the tasks of a lost worker and reports ``KilledWorker``
   after too many losses, which is recorded as the cell's error.
+* One run writes a table at a time: ``cells.csv.lock`` beside it names the
+  pid and host of the run that holds it (an advisory ``flock``, released by
+  the kernel when that process ends however it ends, so the lock of a killed
+  run is taken over), and a second run of the same table is refused. A table
+  of another experiment (its ``experiment`` column) is never overwritten.
+* A cell process dies with the sweep: killed, even by SIGKILL, the sweep
+  takes its workers with it; on Ctrl-C the workers ignore the interrupt and the sweep ends them,
+  so the table holds every finished cell and a rerun resumes.
 
 Cell functions are deterministic in their cell's seeds, so the table is the
 same on a process pool and on a cluster, apart from the columns :data:`TIMING_COLUMNS` matches.
+Any picklable function that returns a dict is a cell function (``dict`` itself here; the
+experiments use :func:`ptm_bench.evaluation.cell.run_cell`):
 
-    >>> table = run_sweep(cells, run_cell, Path("results/grid/cells.csv"), workers=2)
-    >>> table.groupby("models")["gt_mass"].mean()
-    >>> run_sweep(cells, run_cell, path, scheduler="tcp://10.0.0.5:8786")  # scale out
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> cells = [{"cell_id": f"seed={seed}", "experiment": "doc", "seed": seed} for seed in range(3)]
+    >>> table = run_sweep(cells, dict, folder / "cells.csv", workers=2, progress=False)
+    >>> print(table[["cell_id", "status", "attempts"]].to_string(index=False))
+    cell_id status  attempts
+     seed=0     ok         1
+     seed=1     ok         1
+     seed=2     ok         1
+    >>> len(run_sweep(cells, dict, folder / "cells.csv", progress=False))  # resumed: nothing left to run
+    3
+
+On a cluster, ``run_sweep(cells, run_cell, path, scheduler="tcp://10.0.0.5:8786")``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import multiprocessing
 import multiprocessing.connection
 import os
 import re
+import select
+import signal
+import socket
+import threading
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -52,7 +78,7 @@ from tqdm import tqdm
 
 from ptm.dataset import atomic_write
 
-__all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep"]
+__all__ = ["TIMING_COLUMNS", "comparable", "read_table", "run_sweep", "table_lock"]
 
 #: Column names that measure the machine, not the result: they differ between two runs of one config.
 TIMING_COLUMNS = re.compile(r"(wall_s|_per_s|seconds|_ms|_ms_mean|attempts)$")
@@ -69,7 +95,11 @@ def read_table(path) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         return pd.DataFrame()
-    return pd.read_csv(path, keep_default_na=True)
+    try:
+        return pd.read_csv(path, keep_default_na=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not a readable sweep table ({type(error).__name__}: {error}); "
+                         "move it away to start the sweep afresh") from None
 
 
 def comparable(table: pd.DataFrame) -> pd.DataFrame:
@@ -86,29 +116,45 @@ def run_sweep(
     scheduler: str | None = None,
     max_attempts: int = 2,
     retry_failed: bool = False,
+    fresh: bool = False,
     progress: bool = True,
+    connect_timeout: float = 5.0,
 ) -> pd.DataFrame:
     """Run every cell not yet in the table at ``table_path``; return the full table.
 
     ``workers``: local processes at a time (default: the number of CPUs);
     ``max_attempts``: local runs of a cell whose process died before it is recorded as failed;
-    ``scheduler``: a Dask distributed scheduler address, used instead of local processes.
+    ``scheduler``: a Dask distributed scheduler address, used instead of local processes
+    (``connect_timeout`` seconds to answer, else ``ValueError``);
+    ``fresh``: recompute every cell and drop the table's other rows (only of a table of the same experiment).
+
+    A table another run holds (:func:`table_lock`), or one whose ``experiment`` column names
+    another experiment than the cells', raises ``ValueError`` before any cell runs.
     """
     table_path = Path(table_path)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be a positive number of processes, got {workers!r}")
+    with table_lock(table_path):
+        return _run_locked(cells, cell_fn, table_path, workers=workers, scheduler=scheduler, max_attempts=max_attempts,
+                           retry_failed=retry_failed, fresh=fresh, progress=progress, connect_timeout=connect_timeout)
+
+
+def _run_locked(cells, cell_fn, table_path: Path, *, workers, scheduler, max_attempts, retry_failed, fresh, progress,
+                connect_timeout) -> pd.DataFrame:
     cell_ids = [_cell_id(cell) for cell in cells]
     if len(set(cell_ids)) != len(cell_ids):
         duplicate = next(cell_id for cell_id in cell_ids if cell_ids.count(cell_id) > 1)
         raise ValueError(f"cell_id {duplicate!r} appears twice in the sweep")
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
-    table_path.parent.mkdir(parents=True, exist_ok=True)
 
     previous = read_table(table_path)
     rows: dict[str, dict] = {}
     if len(previous):
         if "cell_id" not in previous.columns:
-            raise ValueError(f"{table_path} has no cell_id column: not a sweep table")
-        for row in previous.to_dict(orient="records"):
+            raise ValueError(f"{table_path} has no cell_id column: not a sweep table; refusing to overwrite it")
+        _check_same_experiment(previous, cells, table_path)
+        for row in ([] if fresh else previous.to_dict(orient="records")):
             if retry_failed and row.get("status") != "ok":
                 continue
             rows[str(row["cell_id"])] = row
@@ -123,18 +169,84 @@ def run_sweep(
     if scheduler is None:
         outcomes = _local_outcomes(pending, cell_fn, workers or os.cpu_count() or 1, max_attempts)
     else:
-        outcomes = _dask_outcomes(pending, cell_fn, scheduler)
+        outcomes = _dask_outcomes(pending, cell_fn, scheduler, connect_timeout)
     order = {cell_id: index for index, cell_id in enumerate(cell_ids)}
     with tqdm(total=len(cells), initial=len(cells) - len(pending), unit="cell", disable=not progress) as bar:
         for cell, outcome in outcomes:
             rows[_cell_id(cell)] = _row(cell, outcome)
             _write_table(table_path, rows, order)
             bar.update(1)
-    if not pending:
+    if not pending or fresh:
         _write_table(table_path, rows, order)
     table = read_table(table_path)
     table.attrs.update(recomputed_changed=len(changed), reused_unverified=unverified)
     return table
+
+
+@contextlib.contextmanager
+def table_lock(table_path):
+    """Hold ``TABLE.lock`` (its holder's pid and host inside) while writing the table; refuse if another run holds it.
+
+    The lock is an advisory ``flock`` on that file: the kernel releases it when
+    its process ends, also by SIGKILL, so a lock left by a dead run is taken
+    over. Raises ``ValueError`` naming the holder's pid.
+
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "cells.csv"
+        >>> with table_lock(path):  # doctest: +ELLIPSIS
+        ...     with table_lock(path):
+        ...         pass
+        Traceback (most recent call last):
+        ValueError: ...cells.csv is being written by another run (pid ...
+    """
+    table_path = Path(table_path)
+    folder = table_path.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ValueError(f"output folder {folder} is a file, not a folder") from None
+    except OSError as error:
+        raise ValueError(f"cannot create output folder {folder}: {error.strerror or error}") from None
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"output folder {folder} is not writable")
+    lock_path = table_path.with_name(table_path.name + ".lock")
+    while True:
+        try:
+            descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:
+            raise ValueError(f"cannot create the lock {lock_path}: {error.strerror or error}") from None
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(descriptor, 200, 0).decode(errors="replace").strip() or "unknown"
+            os.close(descriptor)
+            raise ValueError(f"{table_path} is being written by another run (pid {holder.replace(' ', ' on ')}, "
+                             f"lock {lock_path}); wait for it to end, or write elsewhere with --out") from None
+        try:
+            same_file = os.fstat(descriptor).st_ino == os.stat(lock_path).st_ino
+        except FileNotFoundError:
+            same_file = False
+        if same_file:
+            break
+        os.close(descriptor)  # the holder removed the file as we opened it: lock the new one
+    try:
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+        yield lock_path
+    finally:
+        lock_path.unlink(missing_ok=True)  # still locked by us, so no other run holds this file
+        os.close(descriptor)
+
+
+def _check_same_experiment(previous: pd.DataFrame, cells: Sequence[dict], table_path: Path) -> None:
+    """Refuse to touch a table written for another experiment (e.g. ``demo --out results/exp1_penalty``)."""
+    ours = {str(cell["experiment"]) for cell in cells if "experiment" in cell}
+    if not ours:
+        return
+    theirs = set(previous["experiment"].dropna().astype(str)) if "experiment" in previous.columns else {"(none)"}
+    if theirs - ours:
+        raise ValueError(f"{table_path} holds the table of experiment {', '.join(sorted(theirs))}, not of "
+                         f"{', '.join(sorted(ours))}; refusing to overwrite it: choose another output folder")
 
 
 def _recorded_definition(row: dict) -> str | None:
@@ -188,8 +300,34 @@ def _guarded(cell_fn: CellFn, cell: dict) -> dict:
 
 
 def _child(cell_fn: CellFn, cell: dict, connection) -> None:
+    _die_with_sweep(connection)
     connection.send(_guarded(cell_fn, cell))
     connection.close()
+
+
+def _die_with_sweep(connection) -> None:
+    """Make this cell process end with the sweep's process, and leave Ctrl-C to the sweep.
+
+    The sweep holds the only read end of ``connection``'s pipe; when its
+    process ends, also by SIGKILL, the pipe loses its reader and ``poll``
+    reports an error on the write end here. A thread waits for that and ends
+    the process, so no orphan runs on to die on a broken pipe. (The parent
+    process of a cell is the fork server, which outlives it, so a parent-death
+    signal would not fire.) SIGINT reaches the whole process group on Ctrl-C;
+    the sweep ends its workers itself, so a worker ignores it.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not hasattr(select, "poll"):
+        return
+    poller = select.poll()
+    poller.register(connection.fileno(), 0)  # no events asked for: POLLERR / POLLHUP are always reported
+
+    def watch() -> None:
+        while not any(events & (select.POLLERR | select.POLLHUP | select.POLLNVAL) for _, events in poller.poll()):
+            pass
+        os._exit(1)
+
+    threading.Thread(target=watch, name="watch-sweep", daemon=True).start()
 
 
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -243,7 +381,7 @@ def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator
 # -- Dask distributed -------------------------------------------------------------------------
 
 
-def _dask_outcomes(cells, cell_fn, scheduler: str) -> Iterator[tuple[dict, dict]]:
+def _dask_outcomes(cells, cell_fn, scheduler: str, connect_timeout: float) -> Iterator[tuple[dict, dict]]:
     # Exceptions inside a cell are caught by _guarded; a lost worker is retried by the scheduler
     # itself (its ``distributed.scheduler.allowed-failures`` setting) before it reports KilledWorker.
     try:
@@ -252,7 +390,12 @@ def _dask_outcomes(cells, cell_fn, scheduler: str) -> Iterator[tuple[dict, dict]
         raise ValueError("--scheduler needs Dask distributed: pip install 'ptm[dask]'") from None
     if not cells:
         return
-    with Client(scheduler) as client:
+    try:
+        client = Client(scheduler, timeout=f"{connect_timeout}s")
+    except (OSError, TimeoutError, ValueError) as error:  # refused, unreachable, or not an address
+        raise ValueError(f"scheduler {scheduler!r}: no Dask scheduler answered within {connect_timeout:g} s "
+                         f"({type(error).__name__}: {error})") from None
+    with client:
         futures = {
             client.submit(_guarded, cell_fn, cell, key=f"ptm-cell-{_cell_id(cell)}", pure=False): cell
             for cell in cells

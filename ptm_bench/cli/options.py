@@ -1,0 +1,51 @@
+"""Argument types and output checks shared by the ``ptm-bench`` sub-commands.
+
+They fail at the command line, before any simulation, with a message naming the option:
+
+    >>> positive_int("2")
+    2
+    >>> positive_int("0")
+    Traceback (most recent call last):
+    argparse.ArgumentTypeError: must be a positive number of processes, got '0'
+    >>> import tempfile
+    >>> with tempfile.NamedTemporaryFile() as file:
+    ...     output_folder(Path(file.name), "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: --out ... is a file, not a folder
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+__all__ = ["RESUME_HINT", "output_folder", "positive_int"]
+
+#: Attribute of the parsed arguments that a command sets to say how to resume it; printed on Ctrl-C.
+RESUME_HINT = "resume_hint"
+
+
+def positive_int(text: str) -> int:
+    """An ``argparse`` type: an integer >= 1 (``--workers 0`` used to mean "all CPUs")."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number of processes, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive number of processes, got {text!r}")
+    return value
+
+
+def output_folder(path: Path, option: str) -> Path:
+    """Create ``path`` if needed and check that it is a writable folder; ``ValueError`` naming ``option`` if not."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{option} {path} is a file, not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"{option} {path}: cannot create the folder ({error.strerror or error})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path}: the folder is not writable")
+    return path

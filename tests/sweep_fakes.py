@@ -1,0 +1,24 @@
+"""Tiny cell functions for the sweep engine's process tests (importable by the fork server and by scripts)."""
+
+import os
+import time
+from pathlib import Path
+
+
+def sleepy_cell(cell: dict) -> dict:
+    """Write this worker's pid into ``cell["pid_dir"]``, then sleep ``cell["sleep"]`` seconds."""
+    Path(cell["pid_dir"], f"{os.getpid()}.pid").write_text(cell["cell_id"])
+    time.sleep(cell["sleep"])
+    return {"slept": cell["sleep"]}
+
+
+def sleepy_run_cell(cell: dict) -> dict:
+    """A stand-in for ``run_cell`` of ``ptm-bench run``: seed 0 returns at once, the others sleep a minute.
+
+    The worker's pid goes into the experiment's results folder (the parent of its dataset cache).
+    """
+    return sleepy_cell({**cell, "pid_dir": Path(cell["inputs"]["cache_dir"]).parent, "sleep": 0 if cell["seed"] == 0 else 60})
+
+
+def failing_cell(cell: dict) -> dict:
+    raise ValueError(f"seed {cell['seed']}: no signal")
