@@ -315,3 +315,11 @@ def test_a_corrupted_cached_dataset_is_an_error_naming_the_file(tmp_path, kind):
     corrupt(kind, path)
     with pytest.raises(ValueError, match=rf"cached dataset {path} is unreadable .*delete it"):
         dataset_for("short_loop", 0.0, 1.0, 0, cache_dir=tmp_path)
+
+
+def test_the_appearance_check_refuses_an_experiment_folder(tmp_path, capsys):
+    (tmp_path / "cells.csv").write_text("cell_id,experiment\nx,exp1_penalty\n")
+    (tmp_path / "summary.md").write_text("exp1's summary")
+    assert main(["appearance-check", "--runs", "1", "--calibration-runs", "1", "--out", str(tmp_path)]) == 2
+    assert "holds an experiment's table" in capsys.readouterr().err
+    assert (tmp_path / "summary.md").read_text() == "exp1's summary"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ptm_bench.cli.options import output_folder
 from ptm_bench.evaluation.appearance_check import DEFAULT_WORLDS, predictive_check
 from ptm_bench.reporting.appearance_check import write_report
 
@@ -30,6 +31,10 @@ def register(subparsers) -> None:
 
 
 def _run(args) -> int:
+    output_folder(args.out, "--out")
+    if (args.out / "cells.csv").exists():  # its summary.md and figures are an experiment's, not ours to replace
+        raise ValueError(f"--out {args.out} holds an experiment's table (cells.csv); refusing to write the check's "
+                         "summary.md there: choose another folder")
     worlds = {name: DEFAULT_WORLDS[name] for name in args.worlds}
     table, pit = predictive_check(worlds, args.runs, args.calibration_runs, cache_dir=args.out / "datasets")
     summary = write_report(table, pit, args.out)
