@@ -61,7 +61,7 @@ import numpy as np
 
 import ptm
 
-from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
 __all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
            "prior_rate", "topology_sigma"]
@@ -70,8 +70,14 @@ CONFIG = "config"
 
 
 def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
-    """The labelled datasets of the cell's condition at its calibration seeds (never its scored seed)."""
+    """The labelled datasets of the cell's condition at its calibration seeds (never its scored seed).
+
+    For a recorded world, the recorded runs in its ``calibration`` list (never the scored run itself).
+    """
     inputs = cell["inputs"]
+    if is_recorded(inputs["world_spec"]):  # a recorded run is calibrated on the other recorded runs it names
+        return [load_recorded(path, cell["settings"]["appearance"]["components"])
+                for path in inputs["world_spec"]["calibration"]]
     seeds = inputs["calibration_seeds"]
     if cell["seed"] in seeds:
         raise ValueError(f"seed {cell['seed']} is both scored and a calibration seed")

@@ -20,27 +20,36 @@ racing write the same bytes), without the panoramas. With ``components``
 set, the signatures keep K Fourier components (docs/model.md §4) instead of the
 generator's default.
 
-    >>> path = dataset_path("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")  # where it is cached
-    >>> path.parent.as_posix(), path.name.startswith("nested_loops_a0_n1_s3_")
-    ('results/exp3/datasets', True)
-    >>> sorted(world_identity("nested_loops"))
-    ['simulator', 'world', 'world_sha256']
-
-``dataset_for("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")``
-simulates the run the first time (seconds) and reads that file afterwards.
+    >>> dataset = dataset_for("nested_loops", aliasing=0.0, noise=1.0, seed=3, cache_dir="results/exp3/datasets")
+    >>> dataset_path("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")  # where it is cached
+    >>> world_identity("nested_loops")  # {"world": "nested_loops", "world_sha256": "...", "simulator": "..."}
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import zipfile
-import zlib
 from pathlib import Path
 
 import ptm
 
-__all__ = ["dataset_for", "dataset_path", "resolve_world", "simulator_version", "world_identity"]
+__all__ = ["dataset_for", "dataset_path", "is_recorded", "load_recorded", "resolve_world", "simulator_version",
+           "world_identity"]
+
+
+def is_recorded(world_spec) -> bool:
+    """Whether a world is a recorded dataset file, ``{dataset = "path.npz", name = ..., calibration = [...]}``."""
+    return isinstance(world_spec, dict) and "dataset" in world_spec
+
+
+def load_recorded(path, components: int | None = None) -> ptm.Dataset:
+    """A recorded dataset file (a real robot's log made into a dataset); it has the signatures it was made with."""
+    if components is not None:
+        raise ValueError(f"appearance.components = {components} needs panoramas; the recorded dataset {path} has its "
+                         "signatures as imported")
+    if not Path(path).is_file():
+        raise ValueError(f"world: no recorded dataset file at {path}")
+    return ptm.Dataset.load(path)
 
 
 def resolve_world(world_spec, seed: int):
@@ -70,6 +79,12 @@ def world_identity(world_spec) -> dict:
     world by its generator table, already in the spec — the generator's code
     is part of the simulator and versioned with it.
     """
+    if is_recorded(world_spec):  # a recorded run: its bytes and those of its calibration runs decide its rows
+        files = [world_spec["dataset"], *world_spec.get("calibration", [])]
+        missing = [name for name in files if not Path(name).is_file()]
+        if missing:
+            raise ValueError(f"world {world_spec.get('name')!r}: no recorded dataset file at {', '.join(missing)}")
+        return {"world": world_spec, "files_sha256": [hashlib.sha256(Path(name).read_bytes()).hexdigest() for name in files]}
     identity = {"world": world_spec, "simulator": simulator_version()}
     if isinstance(world_spec, str):
         from ptm_bench.world.floorplan import load_world
@@ -84,6 +99,8 @@ def world_identity(world_spec) -> dict:
 def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator_options=None, cache_dir=None,
                  components: int | None = None) -> Path | None:
     """The cache file of one condition and seed (None without ``cache_dir``); its name ends in a digest of the identity."""
+    if is_recorded(world_spec):
+        return Path(world_spec["dataset"])  # recorded, not generated: the file is the dataset
     if cache_dir is None:
         return None
     identity = {**world_identity(world_spec), "aliasing": aliasing, "noise": noise, "seed": seed,
@@ -93,22 +110,15 @@ def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator
     return Path(cache_dir) / f"{Path(name).stem}_a{aliasing:g}_n{noise:g}_s{seed}_{digest}.npz"
 
 
-def _load_cached(path: Path) -> ptm.Dataset:
-    """A cached dataset; a truncated or foreign file is a ``ValueError`` naming it (the cache is never silently wrong)."""
-    try:
-        return ptm.Dataset.load(path)
-    except (ValueError, OSError, EOFError, KeyError, TypeError, zipfile.BadZipFile, zlib.error) as error:
-        raise ValueError(f"cached dataset {path} is unreadable ({type(error).__name__}: {error}); "
-                         "delete it and rerun to generate it again") from None
-
-
 def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_options=None,
                 cache_dir=None, components: int | None = None) -> ptm.Dataset:
     """The dataset of one condition and seed, from ``cache_dir`` if it was generated before."""
+    if is_recorded(world_spec):  # aliasing, noise and seed do not apply to a recorded run
+        return load_recorded(world_spec["dataset"], components)
     generator_options = dict(generator_options or {})
     path = dataset_path(world_spec, aliasing, noise, seed, generator_options, cache_dir, components)
     if path is not None and path.is_file():
-        return _load_cached(path)
+        return ptm.Dataset.load(path)
 
     from ptm_bench.simulation.generate import generate_dataset
 

@@ -58,7 +58,9 @@ WORLD_GENERATORS = ("corridor_grid",)
 #: ``sweep.worlds`` and ``sweep.seeds``, and "choose automatically" elsewhere.
 DEFAULTS = {
     "sweep": {
-        "worlds": None,  # names from ptm_bench.world.floorplan.list_worlds(), or {generator = "corridor_grid", ...} tables
+        "worlds": None,  # names from ptm_bench.world.floorplan.list_worlds(), or {generator = "corridor_grid", ...} tables,
+        # or recorded runs {dataset = "run.npz", name = "intel", calibration = ["other.npz", ...]} (calibration defaults
+        # to every other recorded world of the sweep; a run is never its own calibration)
         "aliasing": [0.0],
         "noise": [1.0],
         "seeds": None,
@@ -142,7 +144,7 @@ def parse_experiment(raw: dict, default_name: str = "experiment", source: str = 
     for key in ("worlds", "seeds"):
         if not sweep[key]:
             raise ValueError(f"{source}: [sweep] needs a non-empty '{key}' list")
-    sweep["worlds"] = [_validated_world(world, source) for world in sweep["worlds"]]
+    sweep["worlds"] = _with_calibration([_validated_world(world, source) for world in sweep["worlds"]], source)
     for key in ("aliasing", "noise"):
         values = _number_list(sweep[key], f"sweep.{key}", source)
         if key == "aliasing" and any(not 0.0 <= value <= 1.0 for value in values):
@@ -279,6 +281,16 @@ def _validated_world(world, source: str):
         if world not in known and not Path(world).suffix == ".toml":
             raise ValueError(f"{source}: unknown world {world!r}; known worlds: {', '.join(sorted(known))}")
         return world
+    if isinstance(world, dict) and "dataset" in world:  # a recorded run (ptm-bench import-carmen writes them)
+        _reject_unknown(world, ("dataset", "name", "calibration"), source, f"recorded world {world.get('name')!r}")
+        if not isinstance(world.get("name"), str) or not world["name"] or "|" in world["name"]:
+            raise ValueError(f"{source}: a recorded world needs a 'name' (a string without '|') for the table")
+        calibration = world.get("calibration", [])
+        if not isinstance(world["dataset"], str) or not isinstance(calibration, list) or \
+                not all(isinstance(path, str) for path in calibration):
+            raise ValueError(f"{source}: recorded world {world['name']!r}: 'dataset' is a .npz path and "
+                             "'calibration' a list of .npz paths")
+        return dict(world)
     if isinstance(world, dict):
         generator = world.get("generator")
         if generator not in WORLD_GENERATORS:
@@ -368,6 +380,23 @@ _VALUE_CHECKS = {
         "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
     },
 }
+
+
+def _with_calibration(worlds: list, source: str) -> list:
+    """Recorded worlds with their calibration runs: as given, or every other recorded world of the sweep."""
+    recorded = [world["dataset"] for world in worlds if isinstance(world, dict) and "dataset" in world]
+    for world in worlds:
+        if not (isinstance(world, dict) and "dataset" in world):
+            continue
+        if "calibration" not in world:
+            world["calibration"] = [path for path in recorded if path != world["dataset"]]
+        if not world["calibration"]:
+            raise ValueError(f"{source}: recorded world {world['name']!r} has no calibration runs: list them in its "
+                             "'calibration' or add other recorded worlds to the sweep")
+        if any(Path(path).resolve() == Path(world["dataset"]).resolve() for path in world["calibration"]):
+            raise ValueError(f"{source}: recorded world {world['name']!r} lists itself among its calibration runs; "
+                             "a scored run is never its own calibration")
+    return worlds
 
 
 def _world_name(world) -> str:
