@@ -20,15 +20,22 @@ racing write the same bytes), without the panoramas. With ``components``
 set, the signatures keep K Fourier components (docs/model.md §4) instead of the
 generator's default.
 
-    >>> dataset = dataset_for("nested_loops", aliasing=0.0, noise=1.0, seed=3, cache_dir="results/exp3/datasets")
-    >>> dataset_path("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")  # where it is cached
-    >>> world_identity("nested_loops")  # {"world": "nested_loops", "world_sha256": "...", "simulator": "..."}
+    >>> path = dataset_path("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")  # where it is cached
+    >>> path.parent.as_posix(), path.name.startswith("nested_loops_a0_n1_s3_")
+    ('results/exp3/datasets', True)
+    >>> sorted(world_identity("nested_loops"))
+    ['simulator', 'world', 'world_sha256']
+
+``dataset_for("nested_loops", 0.0, 1.0, 3, cache_dir="results/exp3/datasets")``
+simulates the run the first time (seconds) and reads that file afterwards.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import ptm
@@ -110,6 +117,15 @@ def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator
     return Path(cache_dir) / f"{Path(name).stem}_a{aliasing:g}_n{noise:g}_s{seed}_{digest}.npz"
 
 
+def _load_cached(path: Path) -> ptm.Dataset:
+    """A cached dataset; a truncated or foreign file is a ``ValueError`` naming it (the cache is never silently wrong)."""
+    try:
+        return ptm.Dataset.load(path)
+    except (ValueError, OSError, EOFError, KeyError, TypeError, zipfile.BadZipFile, zlib.error) as error:
+        raise ValueError(f"cached dataset {path} is unreadable ({type(error).__name__}: {error}); "
+                         "delete it and rerun to generate it again") from None
+
+
 def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_options=None,
                 cache_dir=None, components: int | None = None) -> ptm.Dataset:
     """The dataset of one condition and seed, from ``cache_dir`` if it was generated before."""
@@ -118,7 +134,7 @@ def dataset_for(world_spec, aliasing: float, noise: float, seed: int, generator_
     generator_options = dict(generator_options or {})
     path = dataset_path(world_spec, aliasing, noise, seed, generator_options, cache_dir, components)
     if path is not None and path.is_file():
-        return ptm.Dataset.load(path)
+        return _load_cached(path)
 
     from ptm_bench.simulation.generate import generate_dataset
 
