@@ -269,8 +269,7 @@ class SequentialSplitMerge:
             grown_second = _with_member(part_second, member)
             gain_first = score(grown_first) - score(part_first)
             gain_second = score(grown_second) - score(part_second)
-            top = max(gain_first, gain_second)
-            log_norm = top + math.log(math.exp(gain_first - top) + math.exp(gain_second - top))
+            log_norm = float(np.logaddexp(gain_first, gain_second))
             if forced is not None:
                 joins_first = member in forced
             else:

@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.spatial.distance
+from scipy.special import logsumexp
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
@@ -288,11 +289,10 @@ class OdometryTerm:
         log_weights = log_proposal_norm + np.concatenate([
             self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
         ])
-        largest = float(log_weights.max())
-        weights = np.exp(log_weights - largest)
         # stratified (deterministic allocation) balance-heuristic estimator: the mean of all weights
+        estimate = float(logsumexp(log_weights)) - math.log(len(log_weights))
+        weights = np.exp(log_weights - float(log_weights.max()))  # scaled weights, for the ESS and the error
         mean = float(weights.mean())
-        estimate = largest + math.log(mean)
         ess = float(weights.sum() ** 2 / np.sum(weights**2))
         total = len(weights)
         variance = sum((component.stop - component.start) * float(weights[component].var())
@@ -339,8 +339,7 @@ class OdometryTerm:
                             _lower_solve(relative_factor, moved - mean[:, None]))
             exponents[c] = (mixture.log_alphas[c] - 0.5 * np.einsum("ms,ms->s", standardised, standardised)
                             - log_det + 0.5 * np.einsum("ms,ms->s", moved, moved))
-        largest = exponents.max(axis=0)
-        log_ratio = largest + np.log(np.sum(np.exp(exponents - largest), axis=0))  # log sum_c alpha_c q_c / q_0
+        log_ratio = logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
         states = fit.x + offsets.T
         return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
                 - self.penalties(states, offsets, fit.x, labels, centre_distance))
