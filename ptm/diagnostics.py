@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["split_rhat", "effective_sample_size"]
+__all__ = ["split_rhat", "effective_sample_size", "import_arviz"]
 
 
 def _traces(traces) -> np.ndarray:
@@ -54,8 +54,10 @@ def _never_mixed(halves) -> bool:
     return all(_constant(half) for half in halves)
 
 
-def _arviz():
-    with warnings.catch_warnings():  # arviz 0.2x announces its coming refactor on import
+def import_arviz():
+    """The ``arviz`` module, imported on first use (``import ptm`` does not load it), without the
+    FutureWarning that arviz 0.2x prints on import about its coming refactor."""
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         import arviz
     return arviz
@@ -68,7 +70,7 @@ def split_rhat(traces) -> float:
         return 1.0
     if _never_mixed(_split_halves(traces)):
         return float("inf")
-    return float(_arviz().rhat(traces, method="rank"))
+    return float(import_arviz().rhat(traces, method="rank"))
 
 
 def effective_sample_size(traces) -> float:
@@ -79,4 +81,4 @@ def effective_sample_size(traces) -> float:
         return float(halves.size)
     if _never_mixed(halves):
         return float(halves.shape[0])
-    return float(_arviz().ess(traces, method="bulk"))
+    return float(import_arviz().ess(traces, method="bulk"))

@@ -4,7 +4,8 @@ A PTM is a histogram over canonical partitions — exact probabilities from
 enumeration, or visit frequencies from MCMC. It answers: the k most probable
 topologies, the probability of any partition (0 if never visited), the MAP,
 pairwise co-assignment probabilities P(i and j are the same place), the
-expected number of places, the entropy, and a pandas export.
+expected number of places, the entropy, a pandas export and, for sampled
+PTMs, the chains' traces as an ArviZ ``InferenceData``.
 
     >>> result = ptm.mcmc(posterior, 10_000, seed=0)
     >>> result.top(3)                       # [((0, 1, 0, 2), 0.71), ...]
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataset import atomic_write
+from .diagnostics import import_arviz
 from .partitions import canonical
 
 __all__ = ["PTM", "total_variation"]
@@ -125,6 +127,30 @@ class PTM:
             "probability": self.probabilities[: len(rows)],
             "num_places": rows.max(axis=1).astype(int) + 1,
         })
+
+    def to_inference_data(self):
+        """The sampler traces as an ArviZ ``InferenceData``, for ``arviz.summary``, ``arviz.plot_trace`` and the like.
+
+        The ``posterior`` group holds every trace the sampler kept (``log_prob``,
+        log P(T | Z) of the sampled topology up to a constant, and
+        ``num_places``), one chain per sampler chain or tempered ladder, one
+        draw per kept sample; ``sample_stats`` holds ``lp`` (log_prob under
+        ArviZ's name for the log density). Raises ``ValueError`` for a PTM without
+        traces (an exact enumeration, or one built from probabilities). Needs
+        the ``arviz`` package, imported here.
+        """
+        if not self.traces:
+            raise ValueError(f"this PTM (method {self.method!r}) has no sampler traces to convert: "
+                             "only ptm.mcmc and ptm.tempered_mcmc results carry them")
+        shapes = {name: trace.shape for name, trace in self.traces.items()}
+        if any(len(shape) != 2 for shape in shapes.values()) or len(set(shapes.values())) != 1:
+            raise ValueError(f"traces must all have one shape (chains, samples), got {shapes}")
+        arviz = import_arviz()
+        sample_stats = {"lp": self.traces["log_prob"]} if "log_prob" in self.traces else None
+        data = arviz.from_dict(posterior=dict(self.traces), sample_stats=sample_stats)
+        for group in data.groups():
+            data[group].attrs.update({"inference_library": "ptm", "ptm_method": self.method})
+        return data
 
     def save(self, path) -> Path:
         """Write the PTM (partitions, probabilities, traces, diagnostics) to one ``.npz`` file, atomically."""
