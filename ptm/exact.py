@@ -1,7 +1,8 @@
 """Exact posterior by enumerating every partition (SPEC §3.5).
 
-All Bell(N) partitions are visited depth-first as restricted growth strings:
-detection i joins one of the sets opened so far or opens a new one. The
+All Bell(N) partitions are visited depth-first as restricted growth strings
+(iteratively, in lexicographic order): detection i joins one of the sets
+opened so far or opens a new one. The
 score of the decomposable terms is carried along the enumeration — adding i
 to set j changes only that set's score — and each set's score is memoised by
 its bitmask, so each of the 2^N - 1 possible sets is scored once. Global
@@ -14,7 +15,6 @@ Bell(12) = 4 213 597; sizes above ``max_n`` are refused.
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
@@ -50,39 +50,49 @@ def exact_posterior(posterior, max_n: int = 12) -> PTM:
             mask_scores[mask] = value
         return value
 
-    labels = [0] * n
+    # Depth-first over restricted growth strings without recursion: labels[d] is the set detection d
+    # is in (-1 before its first choice), running[d] the score of the sets of detections 0..d-1,
+    # replaced[d] the mask detection d's choice extended (None when it opened a new set).
+    labels = [-1] * n
+    running = [0.0] * (n + 1)
+    replaced: list[int | None] = [None] * n
+    sets_before = [0] * n
     masks: list[int] = []
     leaf = 0
-
-    def visit(detection: int, running: float) -> None:
-        nonlocal leaf
-        if detection == n:
-            partitions[leaf] = labels
-            value = log_prior[len(masks)] + running
-            if has_global:
-                value += posterior.global_log_prob(Partition.from_labels(labels))
-            log_probs[leaf] = value
-            leaf += 1
-            return
+    detection = 0
+    while detection >= 0:
+        choice = labels[detection]
+        if choice >= 0:  # undo the previous choice of this detection
+            if replaced[detection] is None:
+                masks.pop()
+            else:
+                masks[choice] = replaced[detection]
+        choice += 1
+        if choice > sets_before[detection]:  # every choice tried: back up
+            labels[detection] = -1
+            detection -= 1
+            continue
+        labels[detection] = choice
         bit = bits[detection]
-        for j in range(len(masks)):
-            old = masks[j]
-            new = old | bit
-            masks[j] = new
-            labels[detection] = j
-            visit(detection + 1, running - score(old) + score(new))
-            masks[j] = old
-        masks.append(bit)
-        labels[detection] = len(masks) - 1
-        visit(detection + 1, running + score(bit))
-        masks.pop()
-
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, n + 100))
-    try:
-        visit(0, 0.0)
-    finally:
-        sys.setrecursionlimit(limit)
+        if choice < sets_before[detection]:  # join set `choice`
+            old = masks[choice]
+            replaced[detection] = old
+            masks[choice] = old | bit
+            running[detection + 1] = running[detection] - score(old) + score(old | bit)
+        else:  # open a new set
+            replaced[detection] = None
+            masks.append(bit)
+            running[detection + 1] = running[detection] + score(bit)
+        if detection + 1 < n:
+            detection += 1
+            sets_before[detection] = len(masks)
+            continue
+        partitions[leaf] = labels
+        value = log_prior[len(masks)] + running[n]
+        if has_global:
+            value += posterior.global_log_prob(Partition.from_labels(labels))
+        log_probs[leaf] = value
+        leaf += 1
 
     log_normaliser = float(logsumexp(log_probs))
     if not np.isfinite(log_normaliser):

@@ -73,3 +73,18 @@ def test_ptm_save_and_load_round_trip(tmp_path):
     assert loaded.diagnostics["acceptance_rate"] == result.diagnostics["acceptance_rate"]
     with pytest.raises(ValueError, match=".npz"):
         result.save(tmp_path / "ptm.json")
+
+
+def test_enumeration_is_iterative_in_lexicographic_order(monkeypatch):
+    def refuse(limit):
+        raise AssertionError("exact_posterior must not change the recursion limit")
+
+    monkeypatch.setattr("sys.setrecursionlimit", refuse)
+    exact = ptm.exact_posterior(prior_only_posterior(7))
+    assert len(exact) == ptm.bell(7)
+    # with the prior alone all partitions with M places tie, and the PTM's stable sort keeps them in the
+    # order they were enumerated: lexicographic in the restricted growth string
+    rows, places = [tuple(row) for row in exact.partitions], exact.num_places()
+    for m in range(1, 8):
+        same_m = [row for row, count in zip(rows, places) if count == m]
+        assert len(same_m) == ptm.stirling2(7, m) and same_m == sorted(same_m)
