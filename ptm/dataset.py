@@ -6,8 +6,9 @@ frame at k-1, ``(dx, dy, dtheta)`` with the angle wrapped to (-pi, pi].
 Everything is validated on construction and on load; files are written
 atomically (a temporary file in the same folder, then a rename).
 
+    >>> import tempfile
     >>> ds = Dataset(signatures=np.ones((4, 5)), labels=[0, 1, 0, 2])
-    >>> ds.save("run.npz"); Dataset.load("run.npz").n
+    >>> path = ds.save(Path(tempfile.mkdtemp()) / "run.npz"); Dataset.load(path).n
     4
 """
 
@@ -16,6 +17,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,15 +178,27 @@ class Dataset:
         if not path.is_file():
             raise FileNotFoundError(f"no dataset file at {path}")
         try:
-            with np.load(path, allow_pickle=False) as archive:
+            loaded = np.load(path, allow_pickle=False)
+            if not isinstance(loaded, np.lib.npyio.NpzFile):
+                raise ValueError("it holds a single array (.npy), not the named arrays of a dataset (.npz)")
+            with loaded as archive:
                 contents = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError) as error:
-            raise ValueError(f"{path} is not a readable dataset file: {error}") from None
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as error:
+            # a truncated or foreign file: BadZipFile, zlib.error or EOFError from deep inside numpy
+            raise ValueError(f"{path} is not a readable dataset file ({type(error).__name__}: {error})") from None
         unknown = set(contents) - set(_ARRAY_FIELDS) - {"meta"}
         if unknown:
             raise ValueError(f"{path} has unknown fields {sorted(unknown)}")
-        meta = json.loads(str(contents.pop("meta"))) if "meta" in contents else {}
-        return cls(meta=meta, **contents)
+        try:
+            meta = json.loads(str(contents.pop("meta"))) if "meta" in contents else {}
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{path}: its meta is not valid JSON ({error})") from None
+        if not isinstance(meta, dict):
+            raise ValueError(f"{path}: its meta must be a JSON object, got {type(meta).__name__}")
+        try:
+            return cls(meta=meta, **contents)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
 
     @classmethod
     def from_csv(cls, odometry=None, signatures=None, labels=None, meta=None) -> "Dataset":
@@ -191,8 +206,10 @@ class Dataset:
 
         ``odometry``: a CSV with one row ``dx,dy,dtheta`` per step (N-1 rows);
         ``signatures``: a CSV with one row of K numbers per detection (N rows);
-        ``labels``: optional CSV with one integer per line. A header line of
-        non-numeric names is skipped.
+        ``labels``: optional CSV with one integer per line. A first line of
+        names only is a header and skipped (a byte-order mark is ignored); any
+        other cell that is not a number is a ``ValueError`` naming file, line
+        and cell.
         """
         if odometry is None and signatures is None:
             raise ValueError("from_csv needs an odometry file, a signatures file, or both")
@@ -266,22 +283,34 @@ def _validated_covariances(covariances, n: int) -> np.ndarray:
     return array
 
 
+def _number(cell: str) -> float | None:
+    try:
+        return float(cell)
+    except ValueError:
+        return None
+
+
 def _read_csv(name: str, source, width: int | None = None) -> np.ndarray:
     path = Path(source)
     if not path.is_file():
         raise ValueError(f"{name}: no file at {path}")
+    try:
+        text_lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: a spreadsheet's byte-order mark
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{name}: {path} is not UTF-8 text ({error.reason} at byte {error.start})") from None
     rows = []
-    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+    for line_number, line in enumerate(text_lines, start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
         cells = [cell.strip() for cell in text.split(",")]
-        try:
-            rows.append([float(cell) for cell in cells])
-        except ValueError:
-            if not rows and line_number == 1:
-                continue  # a header line
-            raise ValueError(f"{name}: {path}:{line_number}: not a row of numbers: {text!r}") from None
+        numbers = [_number(cell) for cell in cells]
+        if any(number is None for number in numbers):
+            if not rows and line_number == 1 and all(number is None for number in numbers):
+                continue  # a header line: names only (a row with a typo such as 3O is not one)
+            bad = next(cell for cell, number in zip(cells, numbers) if number is None)
+            raise ValueError(f"{name}: {path}:{line_number}: not a row of numbers: {bad!r} is not a number, in {text!r}")
+        rows.append(numbers)
         if width is not None and len(cells) != width:
             raise ValueError(f"{name}: {path}:{line_number}: expected {width} columns, got {len(cells)}")
         if len(rows[-1]) != len(rows[0]):

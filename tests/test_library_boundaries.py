@@ -1,0 +1,79 @@
+"""The library at its boundaries (issue 10): CSV imports, corrupted files, labels, huge and tied inputs.
+
+Every bad input is a ``ValueError`` naming what is wrong; nothing is silently dropped or wrapped round.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+import ptm
+
+
+# -- CSV import ------------------------------------------------------------------------------------------------
+
+def test_a_byte_order_mark_does_not_turn_the_first_row_into_a_header(tmp_path):
+    path = tmp_path / "signatures.csv"
+    path.write_bytes("1.0,2.0\n3.0,4.0\n5.0,6.0\n".encode("utf-8-sig"))  # as Excel writes it
+    dataset = ptm.Dataset.from_csv(signatures=path)
+    assert dataset.n == 3
+    np.testing.assert_array_equal(dataset.signatures[0], [1.0, 2.0])
+
+
+def test_a_typo_in_the_first_row_is_an_error_naming_file_line_and_cell(tmp_path):
+    path = tmp_path / "signatures.csv"
+    path.write_text("3O,2.0\n3.0,4.0\n5.0,6.0\n")
+    with pytest.raises(ValueError, match=r"signatures: .*signatures.csv:1: not a row of numbers: '3O' is not a number"):
+        ptm.Dataset.from_csv(signatures=path)
+
+
+def test_a_header_of_names_is_still_skipped(tmp_path):
+    path = tmp_path / "odometry.csv"
+    path.write_bytes("\ufeffdx,dy,dtheta\n1,0,0\n1,0,0.1\n".encode())
+    assert ptm.Dataset.from_csv(odometry=path).n == 3
+
+
+def test_a_file_that_is_not_text_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "signatures.csv"
+    path.write_bytes(b"1,2\n\xff\xfe,3\n")
+    with pytest.raises(ValueError, match="signatures.csv is not UTF-8 text"):
+        ptm.Dataset.from_csv(signatures=path)
+
+
+# -- corrupted dataset files -------------------------------------------------------------------------------------
+
+def write_corrupted(kind: str, path):
+    if kind == "truncated":
+        ptm.Dataset(signatures=np.arange(12.0).reshape(4, 3)).save(path)
+        path.write_bytes(path.read_bytes()[:-40])
+    elif kind == "renamed .npy":
+        np.save(path.with_suffix(".npy"), np.arange(4.0))
+        path.with_suffix(".npy").rename(path)
+    elif kind == "bad meta JSON":
+        np.savez(path, signatures=np.arange(12.0).reshape(4, 3), meta=np.array('{"world": "office"'))
+    elif kind == "meta not an object":
+        np.savez(path, signatures=np.arange(12.0).reshape(4, 3), meta=np.array(json.dumps([1, 2])))
+    elif kind == "wrong shapes":
+        np.savez(path, signatures=np.arange(12.0).reshape(4, 3), labels=np.arange(3))
+    else:
+        path.write_bytes(b"PK\x03\x04 not really a zip")
+
+
+@pytest.mark.parametrize("kind", ["truncated", "renamed .npy", "bad meta JSON", "meta not an object", "wrong shapes",
+                                  "garbage"])
+def test_a_corrupted_dataset_file_is_a_value_error_naming_it(tmp_path, kind):
+    path = tmp_path / "run.npz"
+    write_corrupted(kind, path)
+    with pytest.raises(ValueError, match=str(path)):
+        ptm.Dataset.load(path)
+
+
+def test_ptm_bench_show_reports_a_corrupted_file_in_one_line(tmp_path, capsys):
+    from ptm_bench.cli import main
+
+    path = tmp_path / "run.npz"
+    write_corrupted("truncated", path)
+    assert main(["show", str(path), "--out", str(tmp_path / "run.png")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path} is not a readable dataset file" in err and "Traceback" not in err
