@@ -262,7 +262,14 @@ def _validated_labels(labels, n: int) -> np.ndarray:
             raise ValueError("labels must be integers")
     elif array.dtype.kind not in "iu":
         raise ValueError(f"labels must be integers, got dtype {array.dtype}")
+    # checked before the cast: 1e20 and 2e20 would both become -2**63, one place
+    if array.size and (np.any(array < -_INT64_LIMIT) or np.any(array >= _INT64_LIMIT)):
+        worst = array.flat[int(np.argmax(np.abs(array.astype(float))))]
+        raise ValueError(f"labels must fit in 64-bit integers (|label| < 2**63), got {worst!r}")
     return array.astype(np.int64)
+
+
+_INT64_LIMIT = 2.0 ** 63
 
 
 def _validated_covariances(covariances, n: int) -> np.ndarray:
