@@ -183,8 +183,9 @@ class Dataset:
                 raise ValueError("it holds a single array (.npy), not the named arrays of a dataset (.npz)")
             with loaded as archive:
                 contents = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as error:
-            # a truncated or foreign file: BadZipFile, zlib.error or EOFError from deep inside numpy
+        except (OSError, ValueError, EOFError, KeyError, NotImplementedError, zipfile.BadZipFile, zlib.error) as error:
+            # a truncated, foreign or damaged file: BadZipFile, zlib.error, EOFError or (an unknown compression
+            # method in a damaged zip header) NotImplementedError from deep inside numpy
             raise ValueError(f"{path} is not a readable dataset file ({type(error).__name__}: {error})") from None
         unknown = set(contents) - set(_ARRAY_FIELDS) - {"meta"}
         if unknown:

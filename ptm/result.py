@@ -190,7 +190,7 @@ class PTM:
                 if missing:
                     raise ValueError(f"it lacks {', '.join(sorted(missing))}")
                 contents = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as error:
+        except (OSError, ValueError, EOFError, KeyError, NotImplementedError, zipfile.BadZipFile, zlib.error) as error:
             raise ValueError(f"{path} is not a readable PTM file ({type(error).__name__}: {error})") from None
         traces = {name[len("trace_"):]: value for name, value in contents.items() if name.startswith("trace_")}
         try:
