@@ -22,3 +22,11 @@ def sleepy_run_cell(cell: dict) -> dict:
 
 def failing_cell(cell: dict) -> dict:
     raise ValueError(f"seed {cell['seed']}: no signal")
+
+
+def scored_cell(cell: dict) -> dict:
+    """A stand-in for ``run_cell`` that scores a fixed answer: right on even seeds, one place off on odd ones."""
+    from ptm_bench.evaluation import scoring
+
+    answer = (0, 1, 0) if cell["seed"] % 2 == 0 else (0, 1, 1)
+    return {**scoring.score(scoring.point_mass(answer), (0, 1, 0)), "wall_s": 0.0}

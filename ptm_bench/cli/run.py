@@ -18,6 +18,8 @@ from ptm_bench.cli.options import RESUME_HINT, output_folder, positive_int
 from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import describe, expand_cells, load_experiment
 from ptm_bench.evaluation.sweep import run_sweep
+from ptm.dataset import atomic_write
+from ptm_bench.reporting.checks import check_table, evaluate_checks, junit_xml
 from ptm_bench.reporting.summary import aggregate, current_rows, markdown_table, write_summary
 
 SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
@@ -36,8 +38,12 @@ Output goes to OUT/NAME/ (NAME: the config's 'name', default its file name):
 Cells already in cells.csv are skipped, so an interrupted run (Ctrl-C, a kill)
 resumes where it stopped; cells whose config changed are recomputed.
 
+With --check, the config's [checks] thresholds (e.g. "odometry+appearance".gt_mass
+= ">= 0.9") are checked against the summary: a table of what held, a JUnit XML
+report (OUT/NAME/checks.xml, or --junit PATH) and exit status 1 if one fell short.
+
 Config sections ([sweep], [inference], [odometry], [appearance], [[variants]],
-baselines, [paper]) and every key with its default: docs/model.md section 6 and
+baselines, [paper], [checks]) and every key with its default: docs/model.md section 6 and
 ptm_bench.evaluation.experiment.DEFAULTS
 (python3 -c "import ptm_bench.evaluation.experiment as e; print(e.DEFAULTS)")."""
 
@@ -53,6 +59,9 @@ def register(subparsers) -> None:
     parser.add_argument("--scheduler", default=None,
                         help="Dask distributed scheduler address (tcp://host:8786), instead of local processes")
     parser.add_argument("--retry-failed", action="store_true", help="rerun cells that ended in an error")
+    parser.add_argument("--check", action="store_true",
+                        help="check the config's [checks] thresholds; exit 1 if one fails; write a JUnit XML report")
+    parser.add_argument("--junit", type=Path, default=None, help="where --check writes its report (default: OUT/NAME/checks.xml)")
     parser.add_argument("--no-figures", action="store_true", help="write summary.md without drawing figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
@@ -84,7 +93,17 @@ def run(args) -> int:
     print(f"\n{len(table) - failed} cells finished, {failed} failed; table {results_dir / 'cells.csv'}, summary {summary_path}")
     if failed:
         print(failure_report(table, f"ptm-bench run {args.config} --out {args.out} --retry-failed"))
-    return 0 if failed == 0 else 1
+    checks_failed = 0
+    if args.check:
+        if not experiment.checks:
+            raise ValueError(f"--check: {args.config} has no [checks] table")
+        results = evaluate_checks(experiment.checks, summary)
+        checks_failed = int((~results["held"]).sum())
+        report = args.junit or results_dir / "checks.xml"
+        atomic_write(report, lambda handle: handle.write(junit_xml(results, experiment.name).encode()))
+        print(f"\nchecks of {args.config}:\n{check_table(results)}\n"
+              f"{len(results) - checks_failed} held, {checks_failed} did not; JUnit report {report}")
+    return 0 if failed == 0 and checks_failed == 0 else 1
 
 
 def failure_report(table, retry_command: str, shown: int = 3) -> str:

@@ -8,7 +8,9 @@ crosses worlds x aliasing x noise x seeds x (variants + baselines) into the
 cells that :func:`ptm_bench.evaluation.sweep.run_sweep` runs with
 :func:`ptm_bench.evaluation.cell.run_cell`. The format, with every key and its default,
 is :data:`DEFAULTS`; a variant may override any key of ``[inference]``,
-``[odometry]`` and ``[appearance]``::
+``[odometry]`` and ``[appearance]``; an optional ``[checks]`` table holds
+accuracy thresholds on the summary (:data:`CHECK_METRICS`, checked by
+``ptm-bench run --check``, see ``ptm_bench.reporting.checks``)::
 
     name = "exp3_nested"
     [sweep]
@@ -100,7 +102,14 @@ DEFAULTS = {
 }
 
 _VARIANT_KEYS = {"name", "models", "inference", "odometry", "appearance"}
-_TOP_LEVEL_KEYS = {"name", "description", "variants", "baselines", "paper", *DEFAULTS}
+_TOP_LEVEL_KEYS = {"name", "description", "variants", "baselines", "paper", "checks", *DEFAULTS}
+
+#: Summary figures a ``[checks]`` threshold may name: columns of ``ptm_bench.reporting.summary.aggregate``,
+#: one value per world x aliasing x noise x variant (the mean over seeds unless the name says min / max /
+#: median; ``ece`` and ``brier`` pooled over the seeds' pairs). ``NAME_mean`` is accepted for ``NAME``.
+CHECK_METRICS = ("gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari", "lc_f1", "lc_ap",
+                 "expected_places", "map_places", "ece", "brier", "log_score", "confidently_wrong", "rhat_over_1.1")
+_CHECK_CONDITION = re.compile(r"\s*(>=|<=|==|>|<)\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*")
 
 
 @dataclass(frozen=True)
@@ -114,6 +123,7 @@ class Experiment:
     baselines: tuple[str, ...]
     paper: dict  # the paper's reported figures per variant, for the summary
     settings: dict  # the experiment-wide inference, odometry and appearance sections (baselines use these)
+    checks: tuple[dict, ...] = ()  # [checks] thresholds: each variant, metric, operator, threshold, condition
 
 
 def load_experiment(path) -> Experiment:
@@ -175,7 +185,9 @@ def parse_experiment(raw: dict, default_name: str = "experiment", source: str = 
     for variant_name in paper:
         if variant_name not in names:
             raise ValueError(f"{source}: [paper] names unknown variant {variant_name!r}; variants: {names}")
+    checks = _validated_checks(raw.get("checks", {}), names, list(baselines), source)
     return Experiment(
+        checks=checks,
         name=_validated_name(raw.get("name", default_name), source),
         description=str(raw.get("description", "")),
         sweep=sweep,
@@ -299,6 +311,32 @@ def _validated_world(world, source: str):
             raise ValueError(f"{source}: a generated world needs a 'name' for the table")
         return dict(world)
     raise ValueError(f"{source}: a world is a name or a table, got {world!r}")
+
+
+def _validated_checks(raw, variants: list[str], baselines: list[str], source: str) -> tuple[dict, ...]:
+    """``[checks]``: ``METRIC = "OP NUMBER"`` for every variant, or ``"VARIANT".METRIC = "OP NUMBER"`` for one."""
+    if not isinstance(raw, dict):
+        raise ValueError(f"{source}: [checks] must be a table")
+    checks = []
+    for key, value in raw.items():
+        if isinstance(value, dict):
+            if key not in variants + baselines:
+                raise ValueError(f"{source}: [checks] names unknown variant {key!r}; variants: {variants + baselines}")
+            targets, items = [key], value.items()
+        else:
+            targets, items = variants, [(key, value)]  # a bare metric holds for every model variant
+        for metric, condition in items:
+            name = metric[: -len("_mean")] if metric.endswith("_mean") and metric[: -len("_mean")] in CHECK_METRICS \
+                else metric
+            if name not in CHECK_METRICS:
+                raise ValueError(f"{source}: [checks] unknown metric {metric!r}; known: {', '.join(CHECK_METRICS)}")
+            match = _CHECK_CONDITION.fullmatch(condition) if isinstance(condition, str) else None
+            if match is None:
+                raise ValueError(f"{source}: [checks] {metric} must be a condition such as \">= 0.9\", got {condition!r}")
+            checks += [{"variant": target, "metric": name, "operator": match.group(1),
+                        "threshold": float(match.group(2)), "condition": f"{match.group(1)} {match.group(2)}"}
+                       for target in targets]
+    return tuple(checks)
 
 
 def _validated_name(name, source: str) -> str:
