@@ -99,8 +99,9 @@ Sections (all by default; pick with --section, repeatable):
   evaluation  the sweep's overhead per cell, scoring time, one demo cell end to end
 
 Timings are single-process; compare ratios within one run, not absolute times
-across machines. The sections' code: ptm_bench.benchmarks; the models' settings
-they use are the defaults of docs/model.md section 6 and
+across machines. Each section's workload and settings are fixed in its module,
+ptm_bench.benchmarks.SECTION (--scale only scales the work); the settings an
+experiment config may change are documented in docs/model.md section 6 and
 ptm_bench.evaluation.experiment.DEFAULTS."""
 
 
