@@ -3,7 +3,8 @@
 The posterior over set partitions of N landmark detections ("which detections
 were taken at the same place"), from a Poisson-marginalised occupancy prior,
 an odometry likelihood and an appearance likelihood (Ranganathan, Menegatti
-and Dellaert, IEEE T-RO 2006; see SPEC.md for the corrected equations).
+and Dellaert, IEEE T-RO 2006; docs/model.md gives the equations with the
+paper's errata corrected).
 
     >>> import ptm
     >>> ds = ptm.Dataset(signatures=signatures)

@@ -1,7 +1,7 @@
 """A bounded least-recently-used memo with hit statistics.
 
 Used to memoise per-set appearance evidence and per-partition odometry
-likelihoods (SPEC §3.3 step 3): results are deterministic functions of their
+likelihoods (docs/model.md §3.3, step 3): results are deterministic functions of their
 key, so a cache hit returns exactly what a miss would have computed.
 
     >>> cache = BoundedCache(maxsize=2)

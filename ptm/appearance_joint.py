@@ -1,4 +1,4 @@
-"""Joint appearance likelihood: Normal-Inverse-Wishart evidence of the K-vector per set (SPEC §3.2).
+"""Joint appearance likelihood: Normal-Inverse-Wishart evidence of the K-vector per set (docs/model.md §3.2).
 
 Beyond the paper. The paper's model (eq. 15-19, :mod:`ptm.appearance`) treats
 the K signature components as independent; on the simulator one latent factor
@@ -9,7 +9,7 @@ that model is overconfident. Here the whole vector a_i of a detection in set S_j
     a_i ~ N(y_j, Sigma_j),   y_j ~ N(mu, Sigma_j / kappa),   Sigma_j ~ InvWishart(nu, Psi)
 
 (E[Sigma] = Psi / (nu - K - 1)). With n members, mean abar and scatter
-S = sum (a_i - abar)(a_i - abar)^T, integrating y and Sigma out gives (SPEC §3.2)
+S = sum (a_i - abar)(a_i - abar)^T, integrating y and Sigma out gives (docs/model.md §3.2)
 
     kappa_n = kappa + n,   nu_n = nu + n,
     Psi_n = Psi + S + kappa n / kappa_n (abar - mu)(abar - mu)^T

@@ -1,6 +1,6 @@
 """The measurements of one run: odometry, appearance signatures and ground truth.
 
-Implements the data contract of SPEC §2.2. A dataset holds N detections; row k
+Implements the data contract of docs/model.md §2.2. A dataset holds N detections; row k
 of ``odometry`` is the motion from detection k-1 to k expressed in the robot
 frame at k-1, ``(dx, dy, dtheta)`` with the angle wrapped to (-pi, pi].
 Everything is validated on construction and on load; files are written
@@ -34,7 +34,7 @@ _ARRAY_FIELDS = ("odometry", "odometry_cov", "signatures", "labels", "true_poses
 
 @dataclass(frozen=True)
 class Dataset:
-    """Landmark detections of one robot run (SPEC §2.2).
+    """Landmark detections of one robot run (docs/model.md §2.2).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Exact posterior by enumerating every partition (SPEC §3.5).
+"""Exact posterior by enumerating every partition (docs/model.md §3.5).
 
 All Bell(N) partitions are visited depth-first as restricted growth strings
 (iteratively, in lexicographic order): detection i joins one of the sets

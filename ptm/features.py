@@ -1,4 +1,4 @@
-"""Fourier signatures of 360-degree panoramas (SPEC §4; paper Section VI-B).
+"""Fourier signatures of 360-degree panoramas (docs/model.md §4; paper Section VI-B).
 
 The panorama is converted to grayscale in [0, 1] and its rows are averaged
 into one periodic signal s of length W. The signature is |FFT(s)[0:K]| / W.

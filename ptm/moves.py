@@ -1,4 +1,4 @@
-"""Proposal moves over partitions (paper Algorithms 1-2, SPEC §3.4) and the chain state.
+"""Proposal moves over partitions (paper eq. 10, Algorithms 1-2; docs/model.md §3.4) and the chain state.
 
 A move is any object with ``propose(rng, state, posterior) -> Proposal | None``
 (``None`` means "propose the current partition again"). A proposal names the

@@ -1,6 +1,6 @@
 """The odometry likelihood log P(O | T): Laplace proposal (plus a penalty component) and importance sampling.
 
-Implements SPEC §3.3 (paper eq. 3 and 11-14). For a partition T,
+Implements docs/model.md §3.3 (paper eq. 3 and 11-14). For a partition T,
 
     log P(O | T) = log integral exp(-E(P) - Pen(P)) dP,
     Pen(P) = sum over pairs i<j in different sets of f(|t_i - t_j|),
@@ -15,13 +15,13 @@ then importance sampling from Q,
     P_s ~ N(P*, H^-1),    log P(O | T) = logsumexp_s(log w_s) - log S.
 
 (With a factor H = L L^T and P_s = P* + L^-T eps_s the last term is the
-SPEC's 1/2 |eps_s|^2; the structured factor of :mod:`ptm.pose_graph` draws
+1/2 |eps_s|^2 of docs/model.md §3.3, step 2; the structured factor of :mod:`ptm.pose_graph` draws
 P_s from d + r normals instead and evaluates the quadratic form directly.)
 
 Where the penalty is active at P* (a pair of different sets closer than the
 radius), Q alone gives heavy-tailed weights: the integrand's mass sits where
 Pen pushes the pair apart, in Q's tail. The proposal is then a defensive
-mixture (the variant of SPEC §3.3 built around argmin(E + Pen), kept
+mixture (the variant of docs/model.md §3.3 (erratum E10) built around argmin(E + Pen), kept
 alongside Q). Let t = B P be the positions of the detections in the penalised
 pairs (2m numbers), S = B H^-1 B^T their covariance under Q and t* = B P*.
 Component 1 is the Laplace fit of Q(P) exp(-Pen(P)) in t: the mode t† of

@@ -1,7 +1,7 @@
 """Set partitions of N detections: the space of topologies (paper Section III).
 
 A topology is a set partition; its canonical form is the restricted growth
-string (RGS, SPEC §2.1): labels renumbered in order of first appearance. A
+string (RGS, docs/model.md §2.1): labels renumbered in order of first appearance. A
 :class:`Partition` keeps both views — the RGS ``labels`` and the ``blocks``
 (each a sorted tuple of detection indices, blocks ordered by their smallest
 member, so block j carries label j). Counting: the Bell number b_N (paper

@@ -1,4 +1,4 @@
-"""The unnormalised posterior over topologies (paper eq. 1-2, SPEC §3).
+"""The unnormalised posterior over topologies (paper eq. 1-2, docs/model.md §3).
 
     log P(T | Z) = log P(T) + sum_models log P(Z_m | T) + const
 

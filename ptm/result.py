@@ -1,4 +1,4 @@
-"""The result: a probabilistic topological map (paper Section III, SPEC §3.6).
+"""The result: a probabilistic topological map (paper Section III, docs/model.md §3.6).
 
 A PTM is a histogram over canonical partitions — exact probabilities from
 enumeration, or visit frequencies from MCMC. It answers: the k most probable

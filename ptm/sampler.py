@@ -1,4 +1,4 @@
-"""Metropolis-Hastings over topologies (paper Algorithm 1, SPEC §3.4).
+"""Metropolis-Hastings over topologies (paper eq. 10, Algorithm 1; docs/model.md §3.4).
 
 Each step draws a move from a weighted list, asks it for a proposal T' and
 accepts with probability min(1, P(T'|Z) q(T'->T) / (P(T|Z) q(T->T'))), in log
@@ -13,7 +13,7 @@ random), run from seeds spawned from one root, and are pooled; split R-hat
 and effective sample sizes of log P and of the number of places are reported.
 ``init`` may be a previous PTM over fewer detections: the chains then start
 from its most probable topologies, each new detection placed by a draw from
-its conditional under the cheap terms (incremental mapping, SPEC §3.7).
+its conditional under the cheap terms (incremental mapping, docs/model.md §3.7).
 
     >>> result = mcmc(posterior, n_samples=20_000, burn_in=2_000, seed=1, chains=4)
     >>> result.top(3), result.diagnostics["rhat_log_prob"]

@@ -1,4 +1,4 @@
-"""Parallel tempering over topologies (beyond the paper; SPEC §3.4).
+"""Parallel tempering over topologies (beyond the paper; docs/model.md §3.4).
 
 A ladder of chains targets P(T|Z)^beta for inverse temperatures
 1 = beta_0 > beta_1 > ... ; hot chains cross between modes that a single
