@@ -6,10 +6,13 @@ an odometry likelihood and an appearance likelihood (Ranganathan, Menegatti
 and Dellaert, IEEE T-RO 2006; docs/model.md gives the equations with the
 paper's errata corrected).
 
+    >>> import numpy as np
     >>> import ptm
-    >>> ds = ptm.Dataset(signatures=signatures)
-    >>> post = ptm.Posterior(ds, ptm.PoissonPrior(2.0), [ptm.AppearanceModel(0.1, 1.0, 3.0, 0.01)])
-    >>> ptm.mcmc(post, 20_000, seed=0).top(3)
+    >>> signatures = np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]])   # places A, B, A, B
+    >>> model = ptm.AppearanceModel(mu=0.3, kappa=0.05, alpha=3.0, beta=2e-4)
+    >>> post = ptm.Posterior(ptm.Dataset(signatures=signatures), ptm.PoissonPrior(2.0), [model])
+    >>> ptm.exact_posterior(post).map(), ptm.mcmc(post, 2_000, seed=0).map()
+    ((0, 1, 0, 1), (0, 1, 0, 1))
 """
 
 from . import features, moves

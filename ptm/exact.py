@@ -9,8 +9,12 @@ its bitmask, so each of the 2^N - 1 possible sets is scored once. Global
 terms (odometry) are evaluated at the leaves. Bell(10) = 115 975,
 Bell(12) = 4 213 597; sizes above ``max_n`` are refused.
 
-    >>> exact = exact_posterior(posterior)          # posterior.n <= 12
-    >>> exact.top(3)
+    >>> import numpy as np
+    >>> from ptm import Dataset, PoissonPrior, Posterior
+    >>> prior_only = Posterior(Dataset(labels=np.zeros(4, dtype=int)), PoissonPrior(2.0))   # N <= 12
+    >>> exact = exact_posterior(prior_only)
+    >>> len(exact), exact.map(), round(exact.expected_num_places(), 3)                      # Bell(4) = 15
+    (15, (0, 0, 0, 0), 1.871)
 """
 
 from __future__ import annotations

@@ -16,9 +16,13 @@ sampler re-scores only what changed.
   Dahl (2003): two anchors; if they share a set, split it by allocating the
   other members one by one in proportion to the cheap terms; else merge.
 
-    >>> state = initial_state(posterior, [0] * posterior.n)
-    >>> proposal = SplitMerge().propose(np.random.default_rng(0), state, posterior)
-    >>> proposal.log_q_ratio
+    >>> import math
+    >>> from ptm import Dataset, PoissonPrior, Posterior
+    >>> posterior = Posterior(Dataset(labels=[0, 0, 0, 0]), PoissonPrior(2.0))
+    >>> state = initial_state(posterior, [0, 0, 0, 0])
+    >>> proposal = SplitMerge().propose(np.random.default_rng(0), state, posterior)   # a split, here
+    >>> proposal.added, math.isclose(proposal.log_q_ratio, math.log(7))              # S(4, 2) = 7
+    (((0, 3), (1, 2)), True)
 """
 
 from __future__ import annotations

@@ -9,8 +9,12 @@ the *cheap* part of the posterior, memoised per set, so a split or merge
 re-scores only the sets it creates. The remaining (*global*) terms, such as
 the odometry likelihood, are evaluated on whole partitions.
 
-    >>> post = Posterior(dataset, PoissonPrior(2.0), [AppearanceModel(0.1, 1.0, 3.0, 0.01)])
-    >>> post.log_prob([0, 1, 0, 2])
+    >>> import numpy as np
+    >>> from ptm import AppearanceModel, Dataset, PoissonPrior
+    >>> dataset = Dataset(signatures=np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]]))
+    >>> post = Posterior(dataset, PoissonPrior(2.0), [AppearanceModel(0.3, 0.05, 3.0, 2e-4)])
+    >>> round(post.log_prob([0, 1, 0, 1]), 3), round(post.log_prob([5, 2, 5, 7]), 3)   # any integer labels
+    (0.829, -11.005)
 """
 
 from __future__ import annotations

@@ -15,8 +15,13 @@ and effective sample sizes of log P and of the number of places are reported.
 from its most probable topologies, each new detection placed by a draw from
 its conditional under the cheap terms (incremental mapping, docs/model.md §3.7).
 
-    >>> result = mcmc(posterior, n_samples=20_000, burn_in=2_000, seed=1, chains=4)
-    >>> result.top(3), result.diagnostics["rhat_log_prob"]
+    >>> import numpy as np
+    >>> from ptm import AppearanceModel, Dataset, PoissonPrior, Posterior
+    >>> dataset = Dataset(signatures=np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]]))
+    >>> posterior = Posterior(dataset, PoissonPrior(2.0), [AppearanceModel(0.3, 0.05, 3.0, 2e-4)])
+    >>> result = mcmc(posterior, n_samples=2_000, burn_in=200, seed=1, chains=2)
+    >>> result.map(), result.traces["log_prob"].shape, "rhat_log_prob" in result.diagnostics
+    ((0, 1, 0, 1), (2, 2000), True)
 """
 
 from __future__ import annotations

@@ -11,8 +11,13 @@ topologies explain the data). Every ``swap_interval`` steps one adjacent pair
 which keeps every chain's tempered target invariant. Only the beta = 1 chain
 is recorded. Each replica runs the same move mixture as :func:`ptm.mcmc`.
 
-    >>> result = tempered_mcmc(posterior, 20_000, temperatures=(1.0, 0.5, 0.25), seed=0)
-    >>> result.diagnostics["swap_acceptance"]
+    >>> import numpy as np
+    >>> from ptm import AppearanceModel, Dataset, PoissonPrior, Posterior
+    >>> dataset = Dataset(signatures=np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]]))
+    >>> posterior = Posterior(dataset, PoissonPrior(2.0), [AppearanceModel(0.3, 0.05, 3.0, 2e-4)])
+    >>> result = tempered_mcmc(posterior, 2_000, temperatures=(1.0, 0.5, 0.25), seed=0)
+    >>> result.map(), len(result.diagnostics["swap_acceptance"])    # one rate per adjacent pair
+    ((0, 1, 0, 1), 2)
 """
 
 from __future__ import annotations
