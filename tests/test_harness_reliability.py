@@ -323,3 +323,11 @@ def test_the_appearance_check_refuses_an_experiment_folder(tmp_path, capsys):
     assert main(["appearance-check", "--runs", "1", "--calibration-runs", "1", "--out", str(tmp_path)]) == 2
     assert "holds an experiment's table" in capsys.readouterr().err
     assert (tmp_path / "summary.md").read_text() == "exp1's summary"
+
+
+def test_the_demo_refuses_a_folder_with_another_commands_report(tmp_path, capsys):
+    (tmp_path / "summary.md").write_text("# Appearance predictive check")
+    (tmp_path / "checks.csv").write_text("world,model\noffice,joint\n")
+    assert main(["demo", "--world", "short_loop", "--out", str(tmp_path)]) == 2
+    assert "holds a summary.md that is not the demo's" in capsys.readouterr().err
+    assert (tmp_path / "summary.md").read_text() == "# Appearance predictive check"

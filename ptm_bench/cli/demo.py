@@ -70,6 +70,9 @@ def run(args) -> int:
     config["sweep"].update(worlds=[args.world], aliasing=[args.aliasing], noise=[args.noise], seeds=[args.seed])
     experiment = parse_experiment(config, source="ptm-bench demo")
     output_folder(args.out, "--out")
+    if (args.out / "summary.md").exists() and not (args.out / "cells.csv").exists():  # another command's report
+        raise ValueError(f"--out {args.out} holds a summary.md that is not the demo's (no cells.csv beside it); "
+                         "refusing to replace it: choose another folder")
     cells = expand_cells(experiment, args.out)
     print(f"Simulating {args.world} (aliasing {args.aliasing:g}, noise {args.noise:g}, seed {args.seed}), "
           f"calibrating on held-out seeds {experiment.sweep['calibration_seeds']}, "
