@@ -1,4 +1,4 @@
-"""The Poisson-marginalised occupancy prior over partitions (paper eq. 8-9, SPEC §3.1).
+"""The Poisson-marginalised occupancy prior over partitions (paper eq. 8-9, docs/model.md §3.1).
 
 With L landmarks, N detections fall into them like balls into urns:
 P(T | L) = L! / (L - M)! * L^(-N) for a partition T with M sets. With a
