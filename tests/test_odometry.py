@@ -9,6 +9,7 @@ manifold with Gaussian noise on each relative-pose row.
     python -m pytest tests/test_odometry.py -q -k "mcmc_matches or negative_control"
 """
 
+import functools
 import math
 
 import numpy as np
@@ -52,6 +53,18 @@ def mixed_posterior_of(dataset, model_seed=0):
 
 def mixed_posterior(n=7, model_seed=0):
     return mixed_posterior_of(mixed_dataset(n), model_seed)
+
+
+@functools.lru_cache(maxsize=None)
+def mixed_target(n=7):
+    """:func:`mixed_posterior` and its exact posterior, enumerated once per test session.
+
+    Enumerating fills the posterior's odometry memo with every partition, so
+    the samplers that run on this same posterior evaluate nothing new (the
+    values are deterministic functions of the partition: common random numbers).
+    """
+    posterior = mixed_posterior(n)
+    return posterior, ptm.exact_posterior(posterior)
 
 
 # -- derivatives ---------------------------------------------------------------------------------
@@ -247,6 +260,7 @@ def test_sparse_and_banded_low_rank_linear_algebra_agree():
 # -- the paper's Fig. 10 and the sampler ---------------------------------------------------------------
 
 
+@pytest.mark.slow  # two exact enumerations with odometry (8-30 s each on two busy cores)
 @pytest.mark.parametrize("max_penalty, winner", [(100.0, "truth"), (0.0, "all_distinct")])
 def test_penalty_decides_between_truth_and_all_distinct(max_penalty, winner):
     dataset = square_loop_dataset(7)
@@ -265,18 +279,19 @@ def test_penalty_decides_between_truth_and_all_distinct(max_penalty, winner):
 TOLERANCE = 0.06
 
 
+@pytest.mark.slow  # the first test to ask enumerates the N = 7 target (20-90 s on two busy cores)
 def test_mcmc_matches_exact_posterior_with_odometry_and_appearance():
-    exact = ptm.exact_posterior(mixed_posterior())
+    posterior, exact = mixed_target()
     assert exact.entropy() > 1.5  # a spread-out target, not a single spike
-    sampled = ptm.mcmc(mixed_posterior(), 20_000, burn_in=1_000, seed=5, chains=2)
+    sampled = ptm.mcmc(posterior, 20_000, burn_in=1_000, seed=5, chains=2)
     assert ptm.total_variation(sampled, exact) < TOLERANCE
     assert sampled.diagnostics["odometry"]["cache_hit_rate"] > 0.9
 
 
+@pytest.mark.slow
 def test_negative_control_without_the_odometry_term_fails_the_same_check():
-    exact = ptm.exact_posterior(mixed_posterior())
-    appearance_only = mixed_posterior()
-    appearance_only = ptm.Posterior(appearance_only.dataset, appearance_only.prior, appearance_only.terms[:1])
+    posterior, exact = mixed_target()
+    appearance_only = ptm.Posterior(posterior.dataset, posterior.prior, posterior.terms[:1])
     sampled = ptm.mcmc(appearance_only, 20_000, burn_in=1_000, seed=5, chains=2)
     assert ptm.total_variation(sampled, exact) > 3 * TOLERANCE
 

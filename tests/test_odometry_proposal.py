@@ -47,12 +47,14 @@ def truth_masses(dataset, max_penalty):
                      .probability(truth) for s in SEEDS])
 
 
+@pytest.mark.slow  # five exact enumerations with odometry each (90-150 s on two busy cores)
 @pytest.mark.parametrize("max_penalty", [10.0, 30.0, 100.0])
 def test_ground_truth_mass_does_not_depend_on_the_importance_seed(max_penalty):
     masses = truth_masses(issue_loop(), max_penalty)
     assert np.ptp(masses) <= SPREAD_TOLERANCE, masses
 
 
+@pytest.mark.slow
 def test_negative_control_the_single_gaussian_proposal_fails_the_same_check(monkeypatch):
     monkeypatch.setattr(OdometryTerm, "penalty_mixture", lambda self, fit, labels, centre_distance: None)
     masses = truth_masses(issue_loop(), 10.0)
