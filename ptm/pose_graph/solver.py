@@ -24,10 +24,13 @@ defines the Laplace proposal N(P*, H^-1). Dead reckoning
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
 
 from .. import se2
 from .factorisation import BandedLowRankFactor, HessianLayout, SparseFactor
@@ -38,6 +41,10 @@ __all__ = ["PoseGraph", "LaplaceFit", "Linearisation", "SPARSE_ABOVE_DIMENSION"]
 
 #: Above this many variables the Hessian is factorised with sparse linear algebra.
 SPARSE_ABOVE_DIMENSION = 600
+#: Levenberg-Marquardt damping (relative to the Gauss-Newton diagonal): the first value after an undamped
+#: step fails, and the value beyond which a fit gives up (a step that short that still raises E means the
+#: energy is not finite or not smooth there).
+MIN_DAMPING, MAX_DAMPING = 1e-4, 1e12
 
 
 @dataclass(frozen=True)
@@ -46,11 +53,12 @@ class LaplaceFit:
 
     x: np.ndarray  # the minimiser P*, shape (d,)
     energy: float  # E(P*)
-    factor: BandedLowRankFactor | SparseFactor  # of the Gauss-Newton Hessian at P*
+    factor: BandedLowRankFactor | SparseFactor | None  # of the Gauss-Newton Hessian at P* (None: failed fit)
     iterations: int
     factorisations: int  # Cholesky / LU factorisations spent, failed attempts included
     converged: bool
     topology: TopologyHessian  # of the partition fitted
+    failure: str = ""  # why the fit did not converge ("" when it did)
 
 
 class Linearisation:
@@ -138,7 +146,7 @@ class PoseGraph:
     """
 
     def __init__(self, odometry, sqrt_information, sigma_topology: float,
-                 sparse_above: int = SPARSE_ABOVE_DIMENSION, max_iterations: int = 100,
+                 sparse_above: int = SPARSE_ABOVE_DIMENSION, max_iterations: int = 200,
                  step_tolerance: float = 1e-7, close_tolerance: float = 1e-4):
         self.odometry = np.asarray(odometry, dtype=float)
         self.step_information = StepInformation(sqrt_information)
@@ -156,6 +164,18 @@ class PoseGraph:
     def dead_reckoning(self) -> np.ndarray:
         """The state that composes the odometry rows exactly (zero odometry energy): :func:`ptm.se2.dead_reckoning`."""
         return se2.dead_reckoning(self.odometry)[1:].ravel()
+
+    def aligned_start(self, partition) -> np.ndarray:
+        """Dead reckoning with the positions moved to the minimum of E over positions, the headings held
+        at dead reckoning: with the headings fixed, the residuals are linear in the positions and the
+        ties quadratic, so this is one linear (sparse) solve. A start that depends on the partition only."""
+        topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
+        point = Linearisation(self, self.dead_reckoning(), topology)
+        positions = np.flatnonzero(np.arange(self.dimension) % 3 != 2)
+        hessian = self.hessian_matrix(topology, point.gauss_newton)[positions][:, positions]
+        start = point.x.copy()
+        start[positions] -= scipy.sparse.linalg.spsolve(hessian.tocsc(), point.gradient[positions])
+        return start
 
     def topology(self, labels) -> TopologyHessian:
         """The topology term of the partition ``labels`` (canonical or not), for :meth:`energy` and :meth:`fit`."""
@@ -198,15 +218,25 @@ class PoseGraph:
         Newton step is below ``close_tolerance`` the Gauss-Newton Hessian -- the
         one docs/model.md §3.3 defines the Laplace proposal with -- is factorised; the
         fit is converged when its step is below ``step_tolerance`` in every
-        coordinate (or its predicted decrease is below rounding of E). A fit
-        that runs out of iterations is returned with ``converged=False``: its
-        Hessian is still positive definite, so it still defines a valid
-        importance-sampling proposal, and the caller records the failure.
+        coordinate (or its predicted decrease is below rounding of E).
+
+        The damping lambda follows Nielsen's schedule: a rejected step multiplies
+        it by 2, 4, 8, ... (from ``MIN_DAMPING``), an accepted one divides it by
+        at most 3, by less when the quadratic model predicted the decrease
+        poorly, and it is dropped only below ``MIN_DAMPING / 100``. A fit that
+        runs out of iterations, starts at a non-finite energy or finds no
+        decrease up to ``MAX_DAMPING`` is returned with ``converged=False`` and
+        the reason in ``failure``, at its last finite iterate: its Gauss-Newton
+        Hessian is positive definite there, so it still defines a valid
+        importance-sampling proposal (``factor`` is None where it does not), and
+        the caller records the failure.
         """
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
         point = Linearisation(self, np.array(start, dtype=float), topology)
         energy = point.energy
-        damping = 0.0
+        if not math.isfinite(energy):
+            return self._unconverged(point, topology, 0, 0, "non-finite energy at the start")
+        damping, growth = 0.0, 2.0  # lambda and Nielsen's nu
         close = False
         chord_factor = None  # the last accepted step's factor, reused once (a Shamanskii step)
         factorisations = 0
@@ -221,30 +251,63 @@ class PoseGraph:
                 step = -chord_factor.solve(point.gradient)
                 chord_factor = None
                 candidate = Linearisation(self, point.x + step, topology)
-                if candidate.energy <= energy or self._negligible(step, point.gradient, energy):
+                if math.isfinite(candidate.energy) and (candidate.energy <= energy
+                                                        or self._negligible(step, point.gradient, energy)):
                     close = np.max(np.abs(step)) < self.close_tolerance
                     point, energy = candidate, min(candidate.energy, energy)
                     continue
             exact = point.gauss_newton + point.second_order
-            while True:
+            while True:  # bounded: every pass multiplies the damping by >= 2 up to MAX_DAMPING
+                if damping > MAX_DAMPING:
+                    return self._unconverged(point, topology, iteration, factorisations,
+                                             f"no decrease of E at damping {MAX_DAMPING:g}")
                 factorisations += 1
                 try:
                     factor = self.factorise(topology, exact,
-                                                      damping * point.damping_scale if damping else None)
+                                            damping * point.damping_scale if damping else None)
                 except ValueError:  # indefinite: damp towards gradient descent
-                    damping = max(1e-4, 10.0 * damping)
+                    damping = max(MIN_DAMPING, 10.0 * damping)
                     continue
                 step = -factor.solve(point.gradient)
                 candidate = Linearisation(self, point.x + step, topology)
-                if candidate.energy <= energy or self._negligible(step, point.gradient, energy):
+                decrease = energy - candidate.energy
+                if math.isfinite(candidate.energy) and (decrease >= 0.0
+                                                        or self._negligible(step, point.gradient, energy)):
+                    if damping:
+                        # Nielsen's rule: the better the quadratic model predicted the decrease, the more
+                        # the damping falls, but at most by 3 per step (never from 1e-3 straight to 0,
+                        # which alternated overshooting undamped steps with creeping damped ones on large
+                        # graphs); below MIN_DAMPING / 100 it no longer changes a step and is dropped.
+                        # Predicted decrease of the exact quadratic model for (H + lambda D) s = -g:
+                        # -(g.s + 1/2 s^T H s) = 1/2 (-g.s + lambda s^T D s).
+                        predicted = 0.5 * (-float(point.gradient @ step)
+                                           + damping * float(point.damping_scale @ step**2))
+                        gain = decrease / predicted if predicted > 0.0 else 0.0
+                        damping *= max(1.0 / 3.0, 1.0 - (2.0 * min(gain, 1.0) - 1.0) ** 3)
+                        damping = damping if damping >= 1e-2 * MIN_DAMPING else 0.0
+                    growth = 2.0
                     close = np.max(np.abs(step)) < self.close_tolerance
                     point, energy = candidate, min(candidate.energy, energy)
                     chord_factor = factor
-                    damping = damping / 10.0 if damping > 1e-3 else 0.0
                     break
-                damping = max(1e-4, 10.0 * damping)
-        factor = self.factorise(topology, point.gauss_newton)
-        return LaplaceFit(point.x, energy, factor, self.max_iterations, factorisations + 1, False, topology)
+                damping = max(MIN_DAMPING, growth * damping)
+                growth *= 2.0
+        return self._unconverged(point, topology, self.max_iterations, factorisations,
+                                 f"not converged in {self.max_iterations} iterations")
+
+    def _unconverged(self, point: Linearisation, topology: TopologyHessian, iterations: int,
+                     factorisations: int, reason: str) -> LaplaceFit:
+        """The fit at the last accepted iterate, marked ``converged=False`` with the ``reason``; its
+        Gauss-Newton factor when the energy there is finite and that Hessian is positive definite, else
+        ``factor=None`` (no proposal: the caller gives the partition log-likelihood -inf)."""
+        factor = None
+        if math.isfinite(point.energy) and np.all(np.isfinite(point.x)):
+            try:
+                factor = self.factorise(topology, point.gauss_newton)
+                factorisations += 1
+            except ValueError:
+                reason += "; Gauss-Newton Hessian not positive definite"
+        return LaplaceFit(point.x, point.energy, factor, iterations, factorisations, False, topology, reason)
 
     def _negligible(self, step, gradient, energy) -> bool:
         predicted_decrease = -0.5 * float(gradient @ step)
