@@ -40,6 +40,17 @@ Monte-Carlo standard error is the delta-method se(log mean w) = se(mean w) /
 mean w with the stratified variance sum_c n_c var_c(w) / S^2. Without an
 active pair the estimator is exactly the single-Gaussian one above.
 
+Which minimum is P*: E has several local minima on implausible partitions
+(in the headings), and a fit started from the previous partition's optimum
+made the value depend on the chain's history (by hundreds of nats). P* is
+therefore defined from the partition alone: the fit is run from two fixed
+starts, dead reckoning and dead reckoning with the positions moved to their
+optimum given the dead-reckoned headings (one linear solve), and the
+converged minimum of lower energy counts. A fit that fails (iteration cap,
+non-finite energy) is counted and listed per partition in the diagnostics:
+with a positive definite Hessian at its last iterate that Gaussian is the
+(documented) fallback proposal; without one the partition gets -inf, never NaN.
+
 The noise matrix eps (S x (d + N)) is drawn once per bound term from the model's
 seed (common random numbers), so the estimate is a deterministic function of
 the partition (the mode t† is converged to rounding, so it is as history-free
@@ -57,6 +68,7 @@ canonical partition in a bounded LRU cache.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -77,6 +89,8 @@ __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixtur
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
 DEFENSIVE_SHARE = 0.5
+#: Failed fits listed by partition in the diagnostics (all of them are counted).
+FAILURES_KEPT = 20
 
 
 def landmark_penalty(positions, pairs, penalty_radius: float, max_penalty: float) -> np.ndarray:
@@ -160,13 +174,15 @@ class OdometryModel:
 class OdometryTerm:
     """log P(O | T) for one dataset: memoised, deterministic given the model's seed.
 
-    Each miss is a Laplace fit warm-started from the last solved partition's
-    optimum, the most likely partition's optimum or dead reckoning, whichever
-    is lowest in energy under the new partition, and converged tightly, so the value does not depend on the
-    start beyond ~1e-9 relative. A fit that does not converge within the
-    iteration limit is *recorded* (``diagnostics()["failures"]``) and its
-    estimate is still used: the Gaussian at the last iterate is a valid
-    importance-sampling proposal, only a less efficient one. A NaN or +inf
+    Each miss is a Laplace fit from the history-free :meth:`starts` (the
+    lower converged minimum counts, :meth:`fit`), so the value is a function
+    of the partition alone, whatever was evaluated before. A fit that does not
+    converge within the iteration limit is *recorded*
+    (``diagnostics()["failures"]``, the first ``FAILURES_KEPT`` by partition
+    in ``"failed_partitions"``) and its estimate is still used: the Gaussian
+    at the last iterate is a valid importance-sampling proposal, only a less
+    efficient one. A fit with no such Gaussian (non-finite energy, Hessian not
+    positive definite) gives -inf (``"failures_minus_inf"``). A NaN or +inf
     estimate raises ``ValueError`` naming the partition.
 
     Attributes: ``graph`` (the :class:`ptm.pose_graph.PoseGraph` of the
@@ -204,11 +220,11 @@ class OdometryTerm:
         self.sample_chunks = [slice(begin, begin + chunk_size) for begin in range(0, model.n_importance, chunk_size)]
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
-        self._last_solution = self._dead_reckoning
-        self._best_solution, self._best_value = self._dead_reckoning, -math.inf
         self._cache = BoundedCache(model.cache_size)
         self._evaluations = 0
         self._failures = 0
+        self._failed_fits = 0  # failures without a usable fit: log-likelihood -inf
+        self._failed_partitions: list[dict] = []  # the first FAILURES_KEPT of them, with the reason
         self._iterations_total = 0
         self._iterations_max = 0
         self._factorisations_total = 0
@@ -238,16 +254,22 @@ class OdometryTerm:
         started = time.perf_counter()
         if self.n == 1:  # no free pose: the integral over a 0-dimensional space is 1
             return OdometryEvaluation(0.0, 0.0, 0.0, float(self.model.n_importance), 0, 0, True, np.zeros(0))
-        topology = self.graph.topology(labels)
-        fit = self.graph.fit(self._warm_start(topology), topology)
-        evaluation = self._importance_sample(fit, labels)
-        if not math.isfinite(evaluation.log_likelihood):
+        fit = self.fit(labels)
+        if fit.factor is None:  # no minimum and no proposal: the partition gets probability 0
+            evaluation = OdometryEvaluation(-math.inf, -math.inf, math.inf, 0.0, fit.iterations,
+                                            fit.factorisations, False, fit.x)
+        else:
+            evaluation = self._importance_sample(fit, labels)
+        if math.isnan(evaluation.log_likelihood) or evaluation.log_likelihood == math.inf:
             raise ValueError(
                 f"odometry log-likelihood of partition {tuple(labels.tolist())} is {evaluation.log_likelihood}"
             )
-        self._last_solution = fit.x
-        if evaluation.log_likelihood > self._best_value:
-            self._best_solution, self._best_value = fit.x, evaluation.log_likelihood
+        if not fit.converged:
+            self._failed_fits += fit.factor is None
+            if len(self._failed_partitions) < FAILURES_KEPT:
+                self._failed_partitions.append({
+                    "labels": labels.tolist(), "reason": fit.failure,
+                    "fallback": "-inf" if fit.factor is None else "Laplace proposal at the last iterate"})
         self._record(evaluation, time.perf_counter() - started)
         return evaluation
 
@@ -272,19 +294,30 @@ class OdometryTerm:
             "lm_iterations_max": self._iterations_max,
             "factorisations_mean": self._factorisations_total / evaluations if evaluations else math.nan,
             "failures": self._failures,
+            "failures_minus_inf": self._failed_fits,
+            "failed_partitions": list(self._failed_partitions),
             "evaluation_ms_mean": 1e3 * self._seconds / evaluations if evaluations else math.nan,
             "linear_algebra": "sparse" if self.graph.sparse else "banded_low_rank",
         }
 
     # -- the estimator's steps (public so that tests can check each one against dense algebra) ----------
 
-    def _warm_start(self, topology) -> np.ndarray:
-        """The lowest-energy start under ``topology`` among the last optimum, the optimum of the most
-        likely partition so far (a sampler's current state usually is one of the likely ones) and
-        dead reckoning."""
-        candidates = (self._last_solution, self._best_solution, self._dead_reckoning)
-        energies = self.graph.energy(np.stack(candidates), topology)
-        return candidates[int(np.argmin(energies))]
+    def starts(self, topology) -> tuple[np.ndarray, ...]:
+        """The history-free starts of the Laplace fit of ``topology``: dead reckoning, and dead reckoning
+        with the positions moved to their optimum given the dead-reckoned headings
+        (:meth:`ptm.pose_graph.PoseGraph.aligned_start`)."""
+        return self._dead_reckoning, self.graph.aligned_start(topology)
+
+    def fit(self, labels) -> LaplaceFit:
+        """The Laplace fit that defines log P(O | T): of the minima reached from :meth:`starts`, the
+        converged one of lowest energy (the first on a tie); a function of the partition alone."""
+        topology = self.graph.topology(labels)
+        fits = [self.graph.fit(start, topology) for start in self.starts(topology)]
+        usable = [fit for fit in fits if fit.factor is not None] or fits[:1]
+        best = min(usable, key=lambda fit: (not fit.converged, fit.energy))
+        iterations = sum(fit.iterations for fit in fits)
+        factorisations = sum(fit.factorisations for fit in fits)
+        return dataclasses.replace(best, iterations=iterations, factorisations=factorisations)
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
