@@ -4,7 +4,7 @@ Measures, on synthetic routes (a robot visiting about N/3 places on a 5 m
 grid in random order, odometry composed on SE(2) with noise):
 
 * the median wall (and process CPU) time of one log P(O | T) evaluation on a cache miss
-  (Laplace fit warm-started from the previous partition, plus importance
+  (Laplace fit from the two history-free starts of docs/model.md §3.3, plus importance
   sampling with ``n_importance = 100``) at N = 10, 50, 100, 200, for
   partitions one Gibbs move away from the truth, as a sampler proposes them;
 * the odometry cache hit rate, the mean effective sample size of the weights
@@ -74,7 +74,7 @@ def odometry_rows(args) -> list[dict]:
     for n in EVALUATION_SIZES:
         dataset = synthetic_route_dataset(n)
         term = odometry_model().bind(dataset)
-        term.evaluate(dataset.labels)  # the chain's current state: warm start for the rest
+        term.evaluate(dataset.labels)  # the chain's current state (no longer a warm start: kept for comparability)
         wall, cpu = [], []
         for labels in neighbouring_partitions(dataset.labels, evaluations, np.random.default_rng(n)):
             started_wall, started_cpu = time.perf_counter(), time.process_time()
