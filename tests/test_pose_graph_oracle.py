@@ -204,3 +204,42 @@ def test_failed_fits_are_listed_per_partition_and_never_give_nan():
     assert diagnostics["failures"] == 1 and diagnostics["failures_minus_inf"] == 0
     [failed] = diagnostics["failed_partitions"]
     assert failed["labels"] == labels and "iterations" in failed["reason"] and "last iterate" in failed["fallback"]
+
+
+def test_the_damping_falls_geometrically_never_from_1e_3_straight_to_0(monkeypatch):
+    dataset = corridor_grid_dataset(60, seed=3)
+    graph = model().bind(dataset).graph
+    used = []  # the damping of each damped factorisation (0: undamped), in order
+    factorise = graph.factorise
+
+    def recording(topology, blocks, added_diagonal=None):
+        if added_diagonal is not None:
+            used.append(float(np.median(added_diagonal / recording.scale)))
+        return factorise(topology, blocks, added_diagonal)
+
+    linearise = ptm.pose_graph.solver.Linearisation.damping_scale.func
+
+    def scale(self):  # remember the scale the damping multiplies, to read lambda back
+        recording.scale = linearise(self)
+        return recording.scale
+
+    monkeypatch.setattr(ptm.pose_graph.solver.Linearisation, "damping_scale", property(scale))
+    monkeypatch.setattr(graph, "factorise", recording)
+    fits = [graph.fit(graph.dead_reckoning(), labels)
+            for labels in np.random.default_rng(1).integers(0, 8, size=(4, dataset.n))]
+    assert all(fit.converged for fit in fits)
+    assert len(used) > 20  # the implausible partitions needed damping
+    falls = [(before, after) for before, after in zip(used, used[1:]) if after < before]
+    assert falls and all(after >= before / 3.0 * (1 - 1e-12) for before, after in falls)
+    assert min(used) >= 1e-6 * (1 - 1e-12)  # below that it is dropped (an undamped factorisation)
+
+
+def test_a_fit_without_a_usable_hessian_gives_minus_infinity_not_nan(monkeypatch):
+    dataset = corridor_grid_dataset(20, seed=2)
+    term = model().bind(dataset)
+    nowhere = np.full(term.dimension, np.nan)
+    monkeypatch.setattr(term, "starts", lambda topology: (nowhere, nowhere))
+    assert term.log_likelihood(dataset.labels) == -math.inf
+    diagnostics = term.diagnostics()
+    assert diagnostics["failures"] == diagnostics["failures_minus_inf"] == 1
+    assert diagnostics["failed_partitions"][0]["fallback"] == "-inf"
