@@ -226,7 +226,8 @@ class JointAppearanceTerm:
 
 
 class MultivariateStudentT:
-    """Multivariate Student t: ``dof`` degrees of freedom, location ``loc``, shape matrix ``shape``."""
+    """Multivariate Student t: ``dof`` degrees of freedom, location ``loc``, shape matrix ``shape``
+    (a thin wrapper of :data:`scipy.stats.multivariate_t` with the per-component marginal CDFs)."""
 
     def __init__(self, dof: float, loc, shape):
         self.dof = float(dof)
@@ -234,14 +235,8 @@ class MultivariateStudentT:
         self.shape = np.asarray(shape, dtype=float)
 
     def logpdf(self, x) -> float:
-        """Log density of one K-vector."""
-        width = self.loc.shape[0]
-        cholesky = np.linalg.cholesky(self.shape)
-        z = np.linalg.solve(cholesky, np.asarray(x, dtype=float) - self.loc)
-        dof = self.dof
-        return float(math.lgamma(0.5 * (dof + width)) - math.lgamma(0.5 * dof)
-                     - 0.5 * width * math.log(dof * math.pi) - np.sum(np.log(np.diag(cholesky)))
-                     - 0.5 * (dof + width) * math.log1p(float(z @ z) / dof))
+        """Log density of one K-vector (:data:`scipy.stats.multivariate_t`)."""
+        return float(stats.multivariate_t(self.loc, self.shape, df=self.dof).logpdf(np.asarray(x, dtype=float)))
 
     def marginal_cdf(self, x) -> np.ndarray:
         """Per-component marginal CDF of one K-vector: its probability-integral-transform values.

@@ -194,6 +194,22 @@ def test_fit_gradient_matches_finite_differences():
         np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-4)
 
 
+def test_fit_refuses_an_optimiser_that_never_converges(monkeypatch):
+    import ptm.appearance_joint
+
+    real = ptm.appearance_joint.minimize
+
+    def failing(*args, **kwargs):  # every run stops early and says so
+        result = real(*args, **{**kwargs, "options": {"maxiter": 2}})
+        result.success, result.message = False, "STOP: TOTAL NO. OF ITERATIONS REACHED LIMIT (simulated)"
+        return result
+
+    monkeypatch.setattr(ptm.appearance_joint, "minimize", failing)
+    dataset = draw_from_the_model(np.random.default_rng(3), MU, 0.3, 5.0, PSI, places=20, visits=3)
+    with pytest.raises(RuntimeError, match="did not converge.*ITERATIONS"):
+        ptm.JointAppearanceModel.fit([dataset])
+
+
 def test_fit_recovers_known_hyperparameters():
     """Correlation 0.9 between two components; 4 runs x 60 places x 4 visits drawn from the model.
 
