@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -63,7 +64,7 @@ import ptm
 
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
-__all__ = ["calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
+__all__ = ["APPEARANCE_HYPERPARAMETERS", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
            "prior_rate", "topology_sigma"]
 
 CONFIG = "config"
@@ -89,13 +90,33 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
     ]
 
 
-def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected"):
+def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
+                      prior_mean: str = "global", scored_signatures=None):
     """Empirical-Bayes appearance hyperparameters from the labelled held-out runs, and their source.
 
     ``model`` is ``"joint"`` (``ptm.JointAppearanceModel``, Normal-Inverse-Wishart over the K-vector) or
     ``"independent"`` (the paper's ``ptm.AppearanceModel``, whose ``evidence`` may be the printed eq. 19).
+
+    ``prior_mean = "run"`` models a world-level mean (docs/model.md §3.2): places of one world scatter
+    around that world's mean appearance, which differs from world to world (at aliasing 1 every place of
+    a run wears the run's one decor, drawn anew for each run). The spread is fitted on the held-out runs
+    with each run's mean signature removed, and the prior mean is the scored run's own mean signature
+    (``scored_signatures``: all its detections, no labels). With ``"global"`` the spread between worlds
+    counts as spread between places, and a run whose places all look alike is read as one place.
     """
     held_out = _labelled(held_out, "appearance hyperparameters")
+    if prior_mean == "run":
+        if scored_signatures is None:
+            raise ValueError("appearance.prior_mean = 'run' needs the scored run's signatures")
+        centred = [replace(run, signatures=run.signatures - run.signatures.mean(axis=0)) for run in held_out]
+        fitted, source = fitted_appearance(centred, model, evidence)
+        run_mean = np.asarray(scored_signatures, dtype=float).mean(axis=0)
+        hyper = {name: getattr(fitted, name) for name in APPEARANCE_HYPERPARAMETERS[model]}
+        hyper["mu"] = hyper["mu"] + run_mean
+        extra = {} if model == "joint" else {"evidence": evidence}
+        return type(fitted)(**hyper, **extra), f"{source} around each run's mean; prior mean = this run's mean signature"
+    if prior_mean != "global":
+        raise ValueError(f"appearance.prior_mean must be 'global' or 'run', got {prior_mean!r}")
     if model == "joint":
         if evidence != "corrected":
             raise ValueError(f"appearance.evidence = {evidence!r} exists only for the independent model")
@@ -105,6 +126,10 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
     else:
         raise ValueError(f"appearance.model must be 'joint' or 'independent', got {model!r}")
     return fitted, f"empirical Bayes ({model}) on {_runs(held_out)}"
+
+
+#: The hyperparameters of each appearance model, in its constructor's order.
+APPEARANCE_HYPERPARAMETERS = {"independent": ("mu", "kappa", "alpha", "beta"), "joint": ("mu", "kappa", "nu", "psi")}
 
 
 def places_per_detection(held_out: Sequence[ptm.Dataset]) -> float:

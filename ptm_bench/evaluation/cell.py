@@ -44,6 +44,7 @@ import ptm
 from ptm_bench.evaluation import scoring
 from ptm_bench.evaluation.baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
 from ptm_bench.evaluation.calibration import (
+    APPEARANCE_HYPERPARAMETERS,
     calibration_datasets,
     fitted_appearance,
     penalty_radius,
@@ -57,7 +58,7 @@ __all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior"]
 #: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
 #: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
 #: change, and a rerun of a sweep recomputes its cells instead of reusing their rows.
-CELL_VERSION = "ptm_bench.evaluation.cell/2"
+CELL_VERSION = "ptm_bench.cell/2"  # a version label (it keeps its name when modules move)
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000
@@ -122,8 +123,9 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
         ))
     if "appearance" in settings["models"]:
         appearance = settings["appearance"]
-        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"])
-        names = ("mu", "kappa", "nu", "psi") if appearance["model"] == "joint" else ("mu", "kappa", "alpha", "beta")
+        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"],
+                                                             appearance["prior_mean"], dataset.signatures)
+        names = APPEARANCE_HYPERPARAMETERS[appearance["model"]]
         used["appearance_hyperparameters"] = json.dumps(
             {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names})
         models.append(model)

@@ -54,6 +54,7 @@ BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 APPEARANCE_MODELS = ("joint", "independent")
+APPEARANCE_PRIOR_MEANS = ("global", "run")
 WORLD_GENERATORS = ("corridor_grid",)
 
 #: Every section and key a config may set, with its default. ``None`` means "required" for
@@ -97,6 +98,11 @@ DEFAULTS = {
         # `ptm-bench appearance-check`, results/appearance_check/); "joint": Normal-Inverse-Wishart over the K-vector
         "model": "independent",
         "evidence": "corrected",  # "paper_eq19" (the printed formula) exists for the independent model only
+        # "global": one prior mean of a place's appearance for every world, fitted across the calibration runs
+        # (the paper); "run": the prior mean is the scored run's own mean signature (its detections, no labels)
+        # and the spread around it is fitted on calibration runs with each run's mean removed, so that
+        # differences between worlds (another decor library) do not count as differences between places
+        "prior_mean": "global",
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
 }
@@ -228,6 +234,13 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
     return cells
 
 
+#: Keys added to DEFAULTS after results existed, with the value that reproduces what the code did before
+#: them: at that value a key stays out of a cell's definition, so adding an option does not make every
+#: existing row stale (a cell that sets another value is a new cell).
+_ADDED_KEYS = {("appearance", "prior_mean"): "global"}
+_UNSET = object()
+
+
 def _definition(cell: dict) -> str:
     """A digest of everything that decides a cell's row.
 
@@ -242,7 +255,11 @@ def _definition(cell: dict) -> str:
     from ptm_bench.evaluation.cell import CELL_VERSION
     from ptm_bench.evaluation.datacache import world_identity
 
-    decisive = {**cell, "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
+    settings = {section: ({key: value for key, value in values.items()
+                           if _ADDED_KEYS.get((section, key), _UNSET) != value} if isinstance(values, dict) else values)
+                for section, values in cell["settings"].items()}
+    decisive = {**cell, "settings": settings,
+                "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
                 "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": CELL_VERSION}
     return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -279,6 +296,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
     _check_choice(merged["inference"]["moves"], ("default", "paper"), f"{where} inference.moves", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
     _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
+    _check_choice(merged["appearance"]["prior_mean"], APPEARANCE_PRIOR_MEANS, f"{where} appearance.prior_mean", source)
     if merged["appearance"]["evidence"] != "corrected" and merged["appearance"]["model"] != "independent":
         raise ValueError(f"{source}: {where}: appearance.evidence = {merged['appearance']['evidence']!r} needs "
                          "appearance.model = 'independent' (the printed eq. 19 is a form of the paper's model)")

@@ -44,7 +44,7 @@ import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
 __all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "true_odometry"]
 
-GENERATOR_VERSION = "ptm_bench.simulation.generate/3"  # 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
+GENERATOR_VERSION = "ptm_bench.generate/3"  # a version label, kept when modules move; 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
 
 
 def generate_dataset(
