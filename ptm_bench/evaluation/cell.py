@@ -152,7 +152,7 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], moves=moves,
                           delayed_acceptance=inference["delayed_acceptance"])
-    row = scoring.score(scoring.distribution_of(result), dataset.labels, coassignment=result.coassignment())
+    row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
     row.update(_flat_diagnostics(result.diagnostics))

@@ -2,7 +2,7 @@
 
 A result to score is a *distribution*: a mapping from canonical partitions
 (restricted growth strings, docs/model.md §2.1) to probabilities. A PTM gives its
-histogram (:func:`distribution_of`); a baseline's single answer is a point mass
+histogram (pass the PTM itself, :func:`as_ptm`); a baseline's single answer is a point mass
 on one partition. From the distribution and the true labels this module
 computes
 
@@ -46,6 +46,7 @@ from math import isclose, log, nan
 import numpy as np
 from sklearn.metrics import adjusted_rand_score, average_precision_score, precision_recall_fscore_support
 
+import ptm
 from ptm.partitions import canonical
 
 __all__ = [
@@ -53,9 +54,9 @@ __all__ = [
     "LOG_SCORE_FLOOR",
     "RELIABILITY_BINS",
     "adjusted_rand_index",
+    "as_ptm",
     "calibration_scores",
     "coassignment_matrix",
-    "distribution_of",
     "expected_calibration_error",
     "ground_truth_rank",
     "loop_closure_scores",
@@ -83,9 +84,22 @@ def point_mass(labels) -> dict[tuple[int, ...], float]:
     return {canonical(labels): 1.0}
 
 
-def distribution_of(result) -> dict[tuple[int, ...], float]:
-    """The histogram of a ``ptm.PTM`` as a ``{canonical labels: probability}`` dict."""
-    return dict(result.top(len(result)))
+def as_ptm(distribution, n: int | None = None) -> ptm.PTM:
+    """A distribution to score as a ``ptm.PTM``: a PTM passes through; a ``{labels: probability}`` dict is checked.
+
+    The dict's labels are made canonical (equal partitions add up), every
+    probability must be finite and non-negative and they must sum to 1 (within
+    1e-6); ``n``, when given, is the number of detections every partition must have.
+    The PTM then answers the questions the scores ask (probability and rank of
+    the truth, MAP with its tie rule, co-assignment, expected number of places),
+    so the harness and the library cannot disagree on them.
+    """
+    if isinstance(distribution, ptm.PTM):
+        if n is not None and distribution.n != n:
+            raise ValueError(f"the PTM is over {distribution.n} detections, the ground truth has {n}")
+        return distribution
+    probabilities = _validated(distribution, n)
+    return ptm.PTM(list(probabilities), list(probabilities.values()), method="distribution")
 
 
 def _validated(distribution: Mapping, n: int | None = None) -> dict[tuple[int, ...], float]:
@@ -106,13 +120,10 @@ def _validated(distribution: Mapping, n: int | None = None) -> dict[tuple[int, .
     return out
 
 
-def ground_truth_rank(distribution: Mapping, truth) -> float:
-    """1 + the number of partitions strictly more probable than ``truth``; NaN if its mass is 0."""
-    probabilities = _validated(distribution)
-    truth_mass = probabilities.get(canonical(truth), 0.0)
-    if truth_mass == 0.0:
-        return nan
-    return 1 + sum(1 for probability in probabilities.values() if probability > truth_mass)
+def ground_truth_rank(distribution, truth) -> float:
+    """1 + the number of partitions strictly more probable than ``truth``; NaN if its mass is 0 (``PTM.rank``)."""
+    rank = as_ptm(distribution).rank(truth)
+    return nan if rank is None else rank
 
 
 def adjusted_rand_index(labels_a, labels_b) -> float:
@@ -129,15 +140,9 @@ def adjusted_rand_index(labels_a, labels_b) -> float:
     return float(adjusted_rand_score(a, b))
 
 
-def coassignment_matrix(distribution: Mapping) -> np.ndarray:
-    """The N x N matrix of P(i and j are the same place) under the distribution."""
-    probabilities = _validated(distribution)
-    n = len(next(iter(probabilities)))
-    matrix = np.zeros((n, n))
-    for labels, probability in probabilities.items():
-        array = np.asarray(labels)
-        matrix += probability * (array[:, None] == array[None, :])
-    return matrix
+def coassignment_matrix(distribution) -> np.ndarray:
+    """The N x N matrix of P(i and j are the same place) under the distribution (``PTM.coassignment``)."""
+    return as_ptm(distribution).coassignment()
 
 
 def loop_closure_scores(coassignment, truth, threshold: float = 0.5) -> dict[str, float]:
@@ -235,7 +240,7 @@ def expected_calibration_error(table) -> float:
     return float(np.abs(table[:, 1] - table[:, 2]).sum() / total)
 
 
-def calibration_scores(distribution: Mapping, truth, coassignment=None) -> dict:
+def calibration_scores(distribution, truth, coassignment=None) -> dict:
     """The calibration columns of a row: Brier score, pairs, reliability table (JSON), log score, confidently wrong.
 
     * ``n_pairs``: N (N - 1) / 2, the pairs i < j scored;
@@ -247,13 +252,11 @@ def calibration_scores(distribution: Mapping, truth, coassignment=None) -> dict:
     * ``confidently_wrong``: ``map_mass`` >= :data:`CONFIDENT` and the MAP is not the truth.
     """
     truth = canonical(truth)
-    probabilities = _validated(distribution, n=len(truth))
-    if coassignment is None:
-        coassignment = coassignment_matrix(probabilities)
-    return _calibration(probabilities, truth, coassignment)
+    result = as_ptm(distribution, n=len(truth))
+    return _calibration(result, truth, result.coassignment() if coassignment is None else coassignment)
 
 
-def _calibration(probabilities: dict, truth: tuple[int, ...], coassignment) -> dict:
+def _calibration(result: ptm.PTM, truth: tuple[int, ...], coassignment) -> dict:
     matrix = np.asarray(coassignment, dtype=float)
     n = len(truth)
     if matrix.shape != (n, n):
@@ -264,46 +267,43 @@ def _calibration(probabilities: dict, truth: tuple[int, ...], coassignment) -> d
     outcomes = (labels[:, None] == labels[None, :])[upper].astype(float)
     table = reliability_table(predicted, outcomes)
     clipped = np.clip(predicted, 0.0, 1.0)
-    map_labels, map_mass = _map(probabilities)
+    map_mass = float(result.probabilities[0])
     return {
         "n_pairs": int(predicted.size),
         "brier": float(np.mean((clipped - outcomes) ** 2)) if predicted.size else nan,
         "ece": expected_calibration_error(table),
         "reliability": json.dumps(table.tolist()),
-        "log_score": log(max(probabilities.get(truth, 0.0), LOG_SCORE_FLOOR)),
+        "log_score": log(max(result.probability(truth), LOG_SCORE_FLOOR)),
         "map_mass": map_mass,
-        "confidently_wrong": bool(map_mass >= CONFIDENT and map_labels != truth),
+        "confidently_wrong": bool(map_mass >= CONFIDENT and result.map() != truth),
     }
 
 
-def _map(probabilities: dict) -> tuple[tuple[int, ...], float]:
-    """The most probable partition and its probability; ties go to the lexicographically smallest labels."""
-    return max(probabilities.items(), key=lambda item: (item[1], [-label for label in item[0]]))
-
-
-def score(distribution: Mapping, truth, threshold: float = 0.5, coassignment=None) -> dict:
+def score(distribution, truth, threshold: float = 0.5, coassignment=None) -> dict:
     """Every accuracy and calibration score of one distribution over partitions against the true labels.
 
-    ``coassignment`` may pass the distribution's co-assignment matrix when it is
-    already known (``PTM.coassignment()``), instead of recomputing it here.
-    The calibration columns are those of :func:`calibration_scores`.
+    ``distribution`` is a ``ptm.PTM`` or a ``{labels: probability}`` dict (:func:`as_ptm`); the MAP is
+    ``PTM.map()`` (of tied topologies, the lexicographically smallest labels). ``coassignment`` may pass
+    the co-assignment matrix when it is already known, instead of recomputing it here. The calibration
+    columns are those of :func:`calibration_scores`.
     """
     truth = canonical(truth)
-    probabilities = _validated(distribution, n=len(truth))
-    map_labels, _ = _map(probabilities)  # ties to the lexicographically smallest labels, for determinism
+    result = as_ptm(distribution, n=len(truth))
+    map_labels = result.map()
+    rank = result.rank(truth)
     row = {
-        "gt_mass": probabilities.get(truth, 0.0),
-        "gt_rank": ground_truth_rank(probabilities, truth),
+        "gt_mass": result.probability(truth),
+        "gt_rank": nan if rank is None else rank,
         "map_correct": map_labels == truth,
         "ari": adjusted_rand_index(map_labels, truth),
         "n_measurements": len(truth),
-        "expected_places": sum(probability * (max(labels) + 1) for labels, probability in probabilities.items()),
+        "expected_places": result.expected_num_places(),
         "true_places": max(truth) + 1,
         "map_places": max(map_labels) + 1,
-        "n_topologies": len(probabilities),
+        "n_topologies": len(result),
     }
     if coassignment is None:
-        coassignment = coassignment_matrix(probabilities)
+        coassignment = result.coassignment()
     row.update(loop_closure_scores(coassignment, truth, threshold))
-    row.update(_calibration(probabilities, truth, coassignment))
+    row.update(_calibration(result, truth, coassignment))
     return row
