@@ -57,9 +57,13 @@ def _never_mixed(halves) -> bool:
 def import_arviz():
     """The ``arviz`` module, imported on first use (``import ptm`` does not load it), without the
     FutureWarning that arviz 0.2x prints on import about its coming refactor."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        import arviz
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            import arviz
+    except ImportError as error:
+        raise ImportError("R-hat, ESS and PTM.to_inference_data need the arviz package "
+                          "(python3 -m pip install arviz)") from error
     return arviz
 
 

@@ -41,3 +41,30 @@ def test_a_trace_that_moves_only_by_rounding_is_constant():
     assert effective_sample_size(traces) == 2000.0
     # constant halves at different values never mix
     assert split_rhat(np.repeat([[0.0], [1.0]], 100, axis=1)) == np.inf
+
+
+def test_diagnostics_are_arviz_on_the_same_traces():
+    from ptm.diagnostics import import_arviz
+
+    arviz = import_arviz()
+    traces = np.random.default_rng(3).normal(size=(3, 500)).cumsum(axis=1)  # random walks: R-hat well above 1
+    assert split_rhat(traces) == pytest.approx(float(arviz.rhat(traces, method="rank")), rel=1e-12)
+    assert effective_sample_size(traces) == pytest.approx(float(arviz.ess(traces, method="bulk")), rel=1e-12)
+    assert split_rhat(traces) > 1.1
+
+
+def test_a_missing_arviz_is_named(monkeypatch):
+    import builtins
+
+    from ptm.diagnostics import import_arviz
+
+    real_import = builtins.__import__
+
+    def without_arviz(name, *args, **kwargs):
+        if name == "arviz":
+            raise ImportError("No module named 'arviz'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", without_arviz)
+    with pytest.raises(ImportError, match="need the arviz package"):
+        import_arviz()
