@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 from scipy import integrate, stats
+from scipy.optimize import OptimizeResult
 
 from ptm import AppearanceModel, Dataset, Partition, inverse_gamma_from_mean_variance
 
@@ -110,3 +111,48 @@ def test_fit_refuses_calibration_runs_without_a_revisit():
     calibration = Dataset(signatures=np.random.default_rng(0).normal(size=(6, 2)), labels=np.arange(6))
     with pytest.raises(ValueError, match="no revisits"):
         AppearanceModel.fit([calibration])
+
+
+def calibration_runs(seed=11):
+    rng = np.random.default_rng(seed)
+    runs = []
+    for _ in range(3):
+        labels = np.repeat(np.arange(6), 3)
+        centres = rng.normal(0.3, 0.15, size=(6, 2))
+        runs.append(Dataset(signatures=centres[labels] + rng.normal(0, 0.02, size=(18, 2)), labels=labels))
+    return runs
+
+
+def failing_optimiser(monkeypatch, calls_failing):
+    """Make the fit's L-BFGS-B runs number 0 .. calls_failing - 1 stop at once, where they started, reporting failure."""
+    import ptm.appearance
+
+    real, calls = ptm.appearance.minimize, []
+
+    def minimize(fun, x0, **kwargs):
+        calls.append(kwargs.get("jac", False))
+        if len(calls) > calls_failing:
+            return real(fun, x0, **kwargs)
+        value = fun(x0)
+        return OptimizeResult(x=np.asarray(x0, dtype=float), fun=value[0] if kwargs.get("jac") else value,
+                              success=False, message="ABNORMAL: (simulated)")
+
+    monkeypatch.setattr(ptm.appearance, "minimize", minimize)
+    return calls
+
+
+def test_a_failed_fit_is_restarted_with_the_analytic_gradient(monkeypatch):
+    # the restart starts from scratch here (the failed run did not move): it must find the same maximum as the
+    # usual finite-difference run, which it can only do with a right gradient of the evidence
+    expected = AppearanceModel.fit(calibration_runs())
+    calls = failing_optimiser(monkeypatch, calls_failing=1)
+    model = AppearanceModel.fit(calibration_runs())
+    assert calls == [False, True, False]  # component 0: failed, restarted with the gradient; component 1: ok
+    for name in ("mu", "kappa", "alpha", "beta"):
+        np.testing.assert_allclose(getattr(model, name), getattr(expected, name), rtol=1e-5, err_msg=name)
+
+
+def test_a_fit_that_fails_twice_is_refused_by_component(monkeypatch):
+    failing_optimiser(monkeypatch, calls_failing=2)
+    with pytest.raises(RuntimeError, match=r"did not converge for signature component 0 \(ABNORMAL.*; ABNORMAL"):
+        AppearanceModel.fit(calibration_runs())
