@@ -19,7 +19,7 @@ seeds the tests use (in brackets: two more seeds):
   for the correct move (tests/test_sampler.py);
 * odometry + appearance, N = 7 (entropy 1.75 nats), delayed acceptance, seed 5:
   MH 0.041 (0.026, 0.021), tempered with two ladders 0.033 (0.053, 0.024);
-  second stage skipped 0.974 / 0.956; second stage with the first stage's
+  second stage skipped 0.974 / 0.957; second stage with the first stage's
   ratio left in 0.297 (0.312, 0.332) / 0.283 (0.264, 0.265).
 
 The odometry target is enumerated once per session (``mixed_target``), which
