@@ -34,9 +34,11 @@ steps back four times, by up to 0.86 s) is tolerated and counted in
 Malformed input (a truncated line, a non-number, a log without scans or
 without odometry) raises ``ValueError`` naming the file and line.
 
-    >>> log = read_carmen("ptm_bench/logs/data/intel-corrected.log.gz")   # or read_carmen(shipped_log("intel"))
+    >>> log = read_carmen(shipped_log("intel"))          # or a path: read_carmen("my-robot.log.gz")
     >>> log.n_scans, log.form, log.raw_increments.shape, log.reference.shape
-    >>> odometry_poses = log.odometry_poses()             # dead reckoning of the raw increments
+    (910, 'corrected', (909, 3), (910, 3))
+    >>> log.odometry_poses().shape                        # dead reckoning of the raw increments
+    (910, 3)
 """
 
 from __future__ import annotations

@@ -32,7 +32,8 @@ A log (:mod:`ptm_bench.logs.carmen`) becomes a ``ptm.Dataset`` (docs/model.md
     >>> log = read_carmen(shipped_log("aces"))
     >>> fit = fit_noise([read_carmen(shipped_log(name)) for name in ("intel", "fhw", "acapulco")])
     >>> dataset = log_dataset(log, fit, place_spacing=5.0, detection_radius=1.5)
-    >>> dataset.n, len(set(dataset.labels)), dataset.meta["path_length"]
+    >>> dataset.n, len(set(dataset.labels)), round(dataset.meta["path_length"])
+    (55, 40, 323)
 """
 
 from __future__ import annotations
