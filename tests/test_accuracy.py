@@ -24,7 +24,8 @@ from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
 from ptm_bench.evaluation.sweep import run_sweep
 
-pytestmark = pytest.mark.slow  # one module-level sweep of about 100 s on two cores
+# One module-level sweep (about 100-200 s on two cores): slow, and on one pytest-xdist worker so it runs once.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("accuracy_sweep")]
 
 SEEDS = [0, 1, 2]
 

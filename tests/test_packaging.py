@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+# One pytest-xdist worker builds the wheel: setuptools writes build/ in the checkout.
+pytestmark = pytest.mark.xdist_group("wheel_build")
 
 
 def _declared() -> dict:

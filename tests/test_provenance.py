@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import ptm
+from ptm.se2 import relative_pose
 from ptm_bench.evaluation import calibration
 from ptm_bench.evaluation import datacache
 from ptm_bench.evaluation import experiment
@@ -38,10 +39,7 @@ def loop_dataset(seed: int, labels=LOOP_LABELS, meta=None) -> ptm.Dataset:
     xy = CORNERS[labels % len(CORNERS)] + rng.normal(0.0, 0.05, size=(len(labels), 2))
     heading = np.arctan2(np.roll(xy, -1, axis=0)[:, 1] - xy[:, 1], np.roll(xy, -1, axis=0)[:, 0] - xy[:, 0])
     poses = np.column_stack([xy, heading])
-    delta = poses[1:, :2] - poses[:-1, :2]
-    cos, sin = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
-    odometry = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                                np.diff(poses[:, 2])])
+    odometry = relative_pose(poses[:-1], poses[1:])
     odometry += rng.normal(0.0, [0.1, 0.1, 0.05], size=odometry.shape)
     covariance = np.tile(np.diag([0.01, 0.01, 0.0025]), (len(labels) - 1, 1, 1))
     place_looks = np.array([[0.3, 0.1], [0.5, 0.2], [0.2, 0.4], [0.6, 0.5]])

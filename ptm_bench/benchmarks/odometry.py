@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 import ptm
-from ptm.dataset import wrap_angle
+from ptm.se2 import relative_pose, wrap_angle
 
 EVALUATION_SIZES = (10, 50, 100, 200)
 CHAIN_SIZE = 50
@@ -42,11 +42,7 @@ def synthetic_route_dataset(n: int, seed: int = 0, spacing: float = 5.0) -> ptm.
     headings = np.zeros(n)
     headings[1:] = np.arctan2(*(positions[1:] - positions[:-1]).T[::-1])
     poses = np.column_stack([positions, wrap_angle(headings)])
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    delta = current[:, :2] - previous[:, :2]
-    odometry = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                                wrap_angle(current[:, 2] - previous[:, 2])])
+    odometry = relative_pose(poses[:-1], poses[1:])
     odometry += odometry_rng.normal(0.0, [0.1, 0.1, 0.02], size=odometry.shape)
     place_signatures = appearance_rng.uniform(0.05, 0.5, size=(places, 5))
     signatures = np.abs(place_signatures[labels] + appearance_rng.normal(0.0, 0.01, size=(n, 5)))
