@@ -5,11 +5,11 @@
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from pathlib import Path
 
+from ptm_bench.cli.options import dataset_output
 from ptm_bench.simulation.generate import generate_dataset
 
 
@@ -31,14 +31,7 @@ def register(subparsers) -> None:
 
 
 def _run_generate(args) -> int:
-    out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"out: dataset files end in .npz, got {out}")
-    folder = out.parent if str(out.parent) else Path(".")
-    if not folder.is_dir():
-        raise ValueError(f"out: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"out: folder {folder} is not writable")
+    out = dataset_output(args.out)
     started = time.perf_counter()
     dataset = generate_dataset(args.world, args.aliasing, args.noise, args.seed, images=not args.no_images,
                                progress=sys.stderr.isatty(), miss_rate=args.miss_rate, false_rate=args.false_rate)

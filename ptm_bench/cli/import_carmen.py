@@ -12,10 +12,10 @@ other logs (ptm_bench.logs.detections). A shipped log is named by its name.
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
+from ptm_bench.cli.options import dataset_output
 from ptm_bench.logs.carmen import SHIPPED_LOGS
 from ptm_bench.logs.detections import DEFAULT_DETECTION_RADIUS, DEFAULT_PLACE_SPACING, import_carmen
 
@@ -40,14 +40,7 @@ def register(subparsers) -> None:
 
 
 def _run_import(args) -> int:
-    out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"out: dataset files end in .npz, got {out}")
-    folder = out.parent if str(out.parent) else Path(".")
-    if not folder.is_dir():
-        raise ValueError(f"out: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"out: folder {folder} is not writable")
+    out = dataset_output(args.out)
     started = time.perf_counter()
     dataset = import_carmen(args.log, place_spacing=args.place_spacing, detection_radius=args.detection_radius,
                             calibration=args.noise_from)

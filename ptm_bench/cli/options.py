@@ -20,7 +20,7 @@ import argparse
 import os
 from pathlib import Path
 
-__all__ = ["RESUME_HINT", "output_folder", "positive_int"]
+__all__ = ["RESUME_HINT", "dataset_output", "output_folder", "positive_int"]
 
 #: Attribute of the parsed arguments that a command sets to say how to resume it; printed on Ctrl-C.
 RESUME_HINT = "resume_hint"
@@ -49,3 +49,19 @@ def output_folder(path: Path, option: str) -> Path:
     if not os.access(path, os.W_OK | os.X_OK):
         raise ValueError(f"{option} {path}: the folder is not writable")
     return path
+
+
+def dataset_output(path) -> Path:
+    """The ``--out`` of a command that writes one dataset file: a ``.npz`` path in an existing, writable folder.
+
+    ``ValueError`` naming ``out`` otherwise, before any work is done.
+    """
+    out = Path(path)
+    if out.suffix != ".npz":
+        raise ValueError(f"out: dataset files end in .npz, got {out}")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"out: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"out: folder {folder} is not writable")
+    return out
