@@ -188,7 +188,8 @@ class OdometryTerm:
     Attributes: ``graph`` (the :class:`ptm.pose_graph.PoseGraph` of the
     dataset), ``noise_columns`` (the common random numbers, (d + N, S)
     standard normals) and ``sample_chunks`` (the slices of the samples weighted
-    together).
+    together). :meth:`mode_poses` is the optimised map of a topology (drawn by the
+    harness's figures and written by :mod:`ptm.export`).
     """
 
     name = "odometry"
@@ -318,6 +319,26 @@ class OdometryTerm:
         iterations = sum(fit.iterations for fit in fits)
         factorisations = sum(fit.factorisations for fit in fits)
         return dataclasses.replace(best, iterations=iterations, factorisations=factorisations)
+
+    def mode_poses(self, partition) -> np.ndarray:
+        """The optimised map of a topology: the (N, 3) detection poses (x, y, theta) of the Laplace mode P*.
+
+        P* is the minimiser of the pose-graph energy E_T that :meth:`fit` defines
+        (docs/model.md §3.3, step 1: odometry distortion plus the ties of
+        ``partition``, without the penalty), in the frame of detection 0, which
+        sits at the origin. ``ValueError`` for a partition of another length,
+        and for a fit that did not converge (its last iterate is not a mode).
+        """
+        labels = np.asarray(_canonical_labels(partition))
+        if len(labels) != self.n:
+            raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
+        if self.n == 1:
+            return np.zeros((1, 3))
+        fit = self.fit(labels)
+        if not fit.converged:
+            raise ValueError(f"the pose graph of partition {tuple(labels.tolist())} has no converged mode "
+                             f"({fit.failure})")
+        return poses_from_vector(fit.x)
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
