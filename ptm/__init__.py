@@ -15,7 +15,7 @@ paper's errata corrected).
     ((0, 1, 0, 1), (0, 1, 0, 1))
 """
 
-from . import features, moves
+from . import export, features, moves
 from .appearance import (AppearanceModel, inverse_gamma_from_mean_variance, leave_one_out_pit, pair_log_bayes_factor,
                          pairwise_log_bayes_factors, predictive_log_density, predictive_pit)
 from .appearance_joint import JointAppearanceModel
@@ -31,7 +31,7 @@ from .tempering import tempered_mcmc
 
 __all__ = [
     "AppearanceModel", "JointAppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
-    "bell", "canonical", "exact_posterior", "features", "inverse_gamma_from_mean_variance",
+    "bell", "canonical", "exact_posterior", "export", "features", "inverse_gamma_from_mean_variance",
     "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
     "predictive_pit",
     "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel",

@@ -2,8 +2,9 @@
 
 The library is used on robots and in sweep workers; loading MuJoCo, OpenCV,
 pandas, matplotlib or ArviZ with it would cost seconds per process and tie
-the library to the harness. ArviZ (diagnostics, ``PTM.to_inference_data``)
-and pandas (``PTM.to_frame``) are imported where they are used.
+the library to the harness. ArviZ (diagnostics, ``PTM.to_inference_data``),
+pandas (``PTM.to_frame``) and networkx (``ptm.export``) are imported where
+they are used.
 """
 
 import ast
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-HEAVY = ("mujoco", "cv2", "pandas", "matplotlib", "arviz", "ptm_bench")
+HEAVY = ("mujoco", "cv2", "pandas", "matplotlib", "arviz", "networkx", "ptm_bench")
 
 
 def module_level_imports(source: str) -> list[tuple[str, int]]:

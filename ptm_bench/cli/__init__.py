@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "ptm_bench.cli.worlds",
     "ptm_bench.cli.generate",
     "ptm_bench.cli.import_carmen",
+    "ptm_bench.cli.export",
 )
 
 
