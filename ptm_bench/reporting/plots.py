@@ -1,10 +1,13 @@
 """The figures of an experiment (docs/model.md §6), drawn with matplotlib (Agg) and written atomically as PNG.
 
-* :func:`trajectories` — the true path and the dead-reckoned odometry path
-  (paper Figs. 9, 12, 15), detections coloured by their true place.
+* :func:`trajectories` — the true path, the dead-reckoned odometry path and,
+  when given, a topology's optimised map (paper Figs. 9, 12, 15), detections
+  coloured by their true place.
 * :func:`top_topologies` — the most probable topologies drawn as graphs over
-  the detections (at their dead-reckoned positions), detections of one place joined,
-  titled with their probabilities (paper Figs. 10, 13, 14, 17, 18).
+  the detections, each on its own map (the Laplace mode P* of its pose graph,
+  :meth:`ptm.odometry.OdometryTerm.mode_poses`, where the caller has an
+  odometry model), detections of one place joined, titled with their
+  probabilities (paper Figs. 10, 13, 14, 17, 18).
 * :func:`mass_heatmap` — mean posterior mass on the ground truth over
   aliasing x noise, one panel per model variant; where the table has the
   measured aliasing (``aliasing_auc``), each aliasing level is labelled with
@@ -24,7 +27,7 @@
     >>> dataset = ptm.Dataset(odometry=ptm.se2.relative_pose(poses[:-1], poses[1:]), labels=[0, 1, 0], true_poses=poses)
     >>> trajectories(dataset, folder / "trajectory.png").name
     'trajectory.png'
-    >>> top_topologies(poses, [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=folder / "top.png").name
+    >>> top_topologies([poses, poses], [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=folder / "top.png").name
     'top.png'
 """
 
@@ -40,7 +43,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ptm.dataset import atomic_write
-from ptm.se2 import dead_reckoning
+from ptm.se2 import compose, dead_reckoning
 
 
 __all__ = ["dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string",
@@ -68,13 +71,14 @@ def _save(figure, path: Path, tight: bool = True) -> Path:
     return path
 
 
-def _draw_detections(axes, dataset) -> None:
+def _draw_detections(axes, dataset, optimised=None) -> None:
     """True and dead-reckoned detection positions on ``axes``: numbered in time order, coloured by true place.
 
     The odometry is composed from the first true pose when the dataset has
-    true poses (so both paths start together), else from the origin; the
-    world's places, when the dataset's metadata lists them, are drawn as
-    detection-radius discs.
+    true poses (so both paths start together), else from the origin, and so
+    is ``optimised``, a (name, (N, 3) poses in the frame of detection 0) pair
+    such as a topology's optimised map; the world's places, when the
+    dataset's metadata lists them, are drawn as detection-radius discs.
     """
     labels = np.asarray(dataset.labels) if dataset.labels is not None else np.zeros(dataset.n, dtype=int)
     radius = dataset.meta.get("detection_radius", 1.0)
@@ -85,12 +89,17 @@ def _draw_detections(axes, dataset) -> None:
     paths = []
     start = (0.0, 0.0, 0.0)
     if dataset.true_poses is not None:
-        paths.append(("true", dataset.true_poses[:, :2], "-", "o"))
+        paths.append(("true", dataset.true_poses[:, :2], "-", "0.6", "o"))
         start = dataset.true_poses[0]
     if dataset.odometry is not None:
-        paths.append(("odometry (dead reckoning)", dead_reckoning(dataset.odometry, start)[:, :2], "--", "s"))
-    for name, points, style, marker in paths:
-        axes.plot(points[:, 0], points[:, 1], style, color="0.6", lw=1, label=name, zorder=1)
+        paths.append(("odometry (dead reckoning)", dead_reckoning(dataset.odometry, start)[:, :2], "--", "0.4", "s"))
+    if optimised is not None:
+        name, poses = optimised
+        paths.append((name, compose(start, poses)[:, :2], ":", "k", "^"))
+    for name, points, style, colour, marker in paths:
+        # the marker only in the legend (markevery=[]): the detections are drawn below, in their place's colour
+        axes.plot(points[:, 0], points[:, 1], style, color=colour, lw=1, label=name, zorder=1, marker=marker,
+                  markevery=[], markerfacecolor="white", markeredgecolor="k")
         axes.scatter(points[:, 0], points[:, 1], c=[_PLACE_COLOURS(label % 20) for label in labels],
                      marker=marker, s=60, edgecolors="k", zorder=2)
         for index, (x, y) in enumerate(points):
@@ -101,11 +110,12 @@ def _draw_detections(axes, dataset) -> None:
     axes.legend(loc="best", fontsize=8)
 
 
-def trajectories(dataset, path: Path, title: str = "") -> Path:
-    """True and dead-reckoned detection positions, numbered in time order and coloured by true place."""
+def trajectories(dataset, path: Path, title: str = "", optimised=None) -> Path:
+    """True and dead-reckoned detection positions, numbered in time order and coloured by true place; with
+    ``optimised``, a (name, (N, 3) poses) pair in the frame of detection 0, that map too."""
     figure = Figure(figsize=(6.5, 5))
     axes = figure.subplots()
-    _draw_detections(axes, dataset)
+    _draw_detections(axes, dataset, optimised)
     axes.set_title(title or "detections (colour = true place, number = time order)")
     return _save(figure, path)
 
@@ -133,14 +143,17 @@ def dataset_overview(dataset, path: Path) -> Path:
     return _save(figure, path, tight=False)
 
 
-def top_topologies(positions, topologies, truth, path: Path, title: str = "") -> Path:
-    """One panel per topology: detections at ``positions``, members of a set joined, with its probability."""
-    positions = np.asarray(positions, dtype=float)[:, :2]
+def top_topologies(maps, topologies, truth, path: Path, title: str = "") -> Path:
+    """One panel per topology, on its own map: ``maps[i]`` holds the (N, >= 2) positions of the detections
+    under ``topologies[i]`` (a (labels, probability) pair); members of a set joined, with its probability."""
+    if len(maps) != len(topologies):
+        raise ValueError(f"top_topologies: {len(maps)} maps for {len(topologies)} topologies")
     truth = tuple(truth)
     count = max(1, len(topologies))
     figure = Figure(figsize=(3.2 * count, 3.4))
     axes_row = figure.subplots(1, count, squeeze=False)
-    for axes, (labels, probability) in zip(axes_row[0], topologies):
+    for axes, positions, (labels, probability) in zip(axes_row[0], maps, topologies):
+        positions = np.asarray(positions, dtype=float)[:, :2]
         labels = np.asarray(labels)
         axes.plot(positions[:, 0], positions[:, 1], "-", color="0.85", lw=1, zorder=0)
         for place in np.unique(labels):

@@ -19,7 +19,10 @@ probability >= 0.9, MAP not the truth). It puts the paper's reported figures
 (the config's ``[paper]`` table) beside ours, lists where each variant's
 parameters came from (the ``source_*`` columns), lists failed cells with their
 errors, and draws the figures of :mod:`ptm_bench.reporting.plots`: those of the first
-scored seed, the ground-truth-mass heat map, and the reliability diagram.
+scored seed (each top topology on its own optimised map, the Laplace mode of its pose
+graph, where the variant has an odometry model; the trajectory figure with the MAP
+topology's map beside the reference and dead reckoning), the ground-truth-mass heat
+map, and the reliability diagram.
 
     $ ptm-bench run experiments/exp3_nested.toml      # runs the cells, then writes the summary
     $ cat results/exp3_nested/summary.md
@@ -35,8 +38,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ptm.se2 import dead_reckoning
+import ptm
 from ptm.dataset import atomic_write
+from ptm.se2 import dead_reckoning
 
 from ptm_bench.evaluation import scoring
 from ptm_bench.evaluation.datacache import dataset_for
@@ -368,22 +372,35 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
                           experiment.sweep["generator_options"], results_dir / "datasets",
                           experiment.settings["appearance"]["components"])
     where = f"{first['world']}, aliasing {first['aliasing']:g}, noise {first['noise']:g}, seed {first['seed']}"
-    figures = [(f"Detections and odometry: {where}",
-                plots.trajectories(dataset, results_dir / "trajectory.png", title=where))]
+    figures = []
     truth = tuple(json.loads(first["true_labels"]))
-    # Drawn where odometry puts the detections, as the paper draws them: merged sets show as edges.
-    positions = dead_reckoning(dataset.odometry) if dataset.odometry is not None else np.zeros((dataset.n, 2))
+    dead_reckoned = dead_reckoning(dataset.odometry) if dataset.odometry is not None else np.zeros((dataset.n, 3))
+    trajectory_map = None  # (models, name, poses): the MAP map of the variant with the most models and odometry
     for _, row in condition.iterrows():
         slug = re.sub(r"[^A-Za-z0-9]+", "_", row["variant"]).strip("_")
         topologies = [(tuple(labels), probability) for labels, probability in json.loads(row["top5"])]
-        caption = f"Top topologies, {row['variant']} ({where})"
-        figures.append((caption, plots.top_topologies(positions, topologies, truth, results_dir / f"top5_{slug}.png",
+        modes = _modes(experiment, row, dataset, [labels for labels, _ in topologies])
+        if modes is None:  # drawn where odometry puts the detections, as the paper draws them
+            maps, drawn_on = [dead_reckoned] * len(topologies), "at dead-reckoned positions (no odometry model)"
+        else:
+            maps = [dead_reckoned if mode is None else mode for mode in modes]
+            failed = [str(rank) for rank, mode in enumerate(modes, start=1) if mode is None]
+            drawn_on = "each on its optimised map" + (
+                f" (no converged mode for rank {', '.join(failed)}: at dead-reckoned positions)" if failed else "")
+            models = len(row["models"].split("+"))
+            if modes and modes[0] is not None and (trajectory_map is None or models > trajectory_map[0]):
+                trajectory_map = (models, f"MAP topology's optimised map ({row['variant']})", modes[0])
+        caption = f"Top topologies, {row['variant']} ({where}), {drawn_on}"
+        figures.append((caption, plots.top_topologies(maps, topologies, truth, results_dir / f"top5_{slug}.png",
                                                       title=caption)))
         traces = {name[len("trace_"):]: json.loads(row[name]) for name in row.index
                   if name.startswith("trace_") and isinstance(row[name], str)}
         if traces:
             caption = f"Sampler traces, {row['variant']} ({where})"
             figures.append((caption, plots.sampler_traces(traces, results_dir / f"traces_{slug}.png", title=caption)))
+    optimised = trajectory_map[1:] if trajectory_map is not None else None
+    figures.insert(0, (f"Detections: reference, dead reckoning{' and the MAP map' if optimised else ''}: {where}",
+                       plots.trajectories(dataset, results_dir / "trajectory.png", title=where, optimised=optimised)))
     if ok["aliasing"].nunique() > 1 or ok["noise"].nunique() > 1:
         caption = "Ground-truth mass over aliasing x noise" + (
             " (aliasing labelled with the measured AUC of signature distance)" if _has_measured_aliasing(ok) else "")
@@ -395,6 +412,29 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         caption = "Reliability of the pairwise co-assignment probabilities, pooled per variant over all cells"
         figures.append((caption, plots.reliability_diagram(reliability, results_dir / "reliability.png")))
     return figures
+
+
+def _modes(experiment: Experiment, row, dataset, topologies) -> list | None:
+    """The optimised map of each topology: the (N, 3) Laplace mode P* of its pose graph under the odometry model
+    the row used (:meth:`ptm.odometry.OdometryTerm.mode_poses`; None for a fit that did not converge), or None
+    for a variant without an odometry model (a baseline, appearance alone) or a dataset without odometry.
+
+    The mode does not depend on the landmark-density penalty, so the model needs only the variant's
+    ``sigma_xy``/``sigma_theta`` (used where the dataset has no ``odometry_cov``) and the row's ``sigma_topology``.
+    """
+    variant = next((variant for variant in experiment.variants if variant["name"] == row["variant"]), None)
+    if variant is None or "odometry" not in variant["models"] or dataset.odometry is None:
+        return None
+    settings = variant["odometry"]
+    term = ptm.OdometryModel(sigma_xy=settings["sigma_xy"], sigma_theta=settings["sigma_theta"],
+                             sigma_topology=float(row["sigma_topology"])).bind(dataset)
+    modes = []
+    for labels in topologies:
+        try:
+            modes.append(term.mode_poses(labels))
+        except ValueError:  # the fit did not converge: no mode to draw
+            modes.append(None)
+    return modes
 
 
 def _has_measured_aliasing(ok: pd.DataFrame) -> bool:
