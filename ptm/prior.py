@@ -11,9 +11,19 @@ M log rate + log E[(K + M)^-N] with K = L - M ~ Poisson(rate): to about 1e-14
 and in milliseconds for any rate up to 1e15 and beyond. Summed over all
 partitions of N detections it equals 1 - exp(-rate) = P(L >= 1).
 
+The rate counts landmarks, visited or not; the number of *visited* places,
+M, is smaller. With L landmarks, N detections occupy on average
+L (1 - (1 - 1/L)^N) of them, so E[M | N] = E[L (1 - (1 - 1/L)^N) | L >= 1]
+(:meth:`PoissonPrior.expected_places`), and :meth:`PoissonPrior.with_expected_places`
+finds the rate for which that expectation is a given number of places.
+
     >>> prior = PoissonPrior(rate=3.0)
     >>> prior.log_prob(n=5, m=2)            # doctest: +ELLIPSIS
     -3.79...
+    >>> round(PoissonPrior(rate=6.0).expected_places(n=9), 2)
+    4.58
+    >>> round(PoissonPrior.with_expected_places(n=9, places=6.0).rate, 2)
+    10.25
 """
 
 from __future__ import annotations
@@ -22,7 +32,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy import integrate, optimize
+from scipy import integrate, optimize, stats
 from scipy.special import digamma, gammaln, logsumexp
 
 from ._validation import positive
@@ -46,6 +56,35 @@ class PoissonPrior:
         if not 1 <= m <= n:
             raise ValueError(f"a partition of n={n} detections has 1 <= m <= n places, got m={m}")
         return self._log_prob(int(n), int(m))
+
+    def expected_places(self, n: int) -> float:
+        """E[M | N = ``n``]: the number of distinct places the prior expects ``n`` detections to visit."""
+        n = _detections(n)
+        spread = 40.0 * math.sqrt(self.rate) + 40.0  # the Poisson mass beyond this is below 1e-300
+        counts = np.arange(max(1, math.floor(self.rate - spread)), math.ceil(self.rate + spread) + 1, dtype=float)
+        occupied = -counts * np.expm1(n * np.log1p(-1.0 / np.maximum(counts, 2.0)))
+        occupied[counts == 1.0] = 1.0
+        weights = stats.poisson.pmf(counts, self.rate)
+        return float(weights @ occupied / weights.sum())
+
+    @classmethod
+    def with_expected_places(cls, n: int, places: float) -> "PoissonPrior":
+        """The prior whose expected number of visited places for ``n`` detections is ``places`` (1 < places < n)."""
+        n = _detections(n)
+        places = float(places)
+        if not 1.0 < places < n:
+            raise ValueError(f"expected places must lie strictly between 1 and n={n} (the prior's limits as the rate "
+                             f"goes to 0 and to infinity), got {places!r}")
+
+        def excess(log_rate):
+            return cls(math.exp(log_rate)).expected_places(n) - places
+
+        low, high = math.log(places) - 1.0, math.log(places) + 1.0
+        while excess(low) > 0.0:
+            low -= 2.0
+        while excess(high) < 0.0:
+            high += 2.0
+        return cls(math.exp(optimize.brentq(excess, low, high, xtol=1e-12, rtol=1e-12)))
 
     def table(self, n: int) -> np.ndarray:
         """Array whose entry ``m`` is log P(T) for M = m (entry 0 is -inf)."""
@@ -95,6 +134,12 @@ class PoissonPrior:
 
     def __repr__(self) -> str:
         return f"PoissonPrior(rate={self.rate:g})"
+
+
+def _detections(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n (the number of detections) must be a positive integer, got {n!r}")
+    return int(n)
 
 
 def _log_terms(k: np.ndarray, n: int, m: int, rate: float, base: float = 0.0) -> np.ndarray:

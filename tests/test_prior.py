@@ -62,3 +62,24 @@ def test_huge_rates_take_milliseconds_and_still_sum_to_one(rate):
     assert total == pytest.approx(1.0, rel=1e-9)
     # a Poisson count of landmarks that large puts every detection at a place of its own
     assert prior.log_prob(6, 6) == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("rate, n", [(0.3, 5), (6.0, 9), (8.0, 12), (100.0, 30), (1e4, 9)])
+def test_expected_places_is_the_prior_mean_of_the_number_of_sets(rate, n):
+    prior = PoissonPrior(rate)
+    mass = np.array([float(stirling2(n, m)) * math.exp(prior.log_prob(n, m)) for m in range(1, n + 1)])
+    assert mass.sum() == pytest.approx(-math.expm1(-rate), rel=1e-10)
+    assert prior.expected_places(n) == pytest.approx(float(np.arange(1, n + 1) @ mass / mass.sum()), rel=1e-10)
+    assert 1.0 <= prior.expected_places(n) < min(n, rate + 1.0)
+
+
+@pytest.mark.parametrize("n, places", [(9, 1.2), (9, 5.1), (12, 11.5), (150, 60.0)])
+def test_the_rate_with_given_expected_places_reproduces_them(n, places):
+    prior = PoissonPrior.with_expected_places(n, places)
+    assert prior.expected_places(n) == pytest.approx(places, rel=1e-9)
+
+
+@pytest.mark.parametrize("n, places", [(9, 1.0), (9, 9.0), (9, 0.5), (9, float("nan")), (0, 2.0), (2.5, 2.0)])
+def test_expected_places_out_of_reach_are_refused(n, places):
+    with pytest.raises(ValueError, match="expected places|n \\(the number of detections\\)"):
+        PoissonPrior.with_expected_places(n, places)

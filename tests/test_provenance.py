@@ -82,11 +82,16 @@ def test_places_per_detection_pools_places_and_detections_over_runs():
     assert calibration.places_per_detection([loop_dataset(0, labels=[0, -1, 0, -2])]) == pytest.approx(3 / 4)
 
 
-def test_the_prior_rate_is_configured_or_places_per_detection_times_n():
+def test_the_prior_rate_is_configured_or_expects_places_per_detection_times_n_places():
     runs = [loop_dataset(0, labels=[0, 1, 0, 2]), loop_dataset(1, labels=[0, 1, 1])]
     rate, source = calibration.prior_rate({"prior_rate": None}, n=14, held_out=runs)
-    assert rate == pytest.approx(10.0)
-    assert source == "calibrated: 0.714 places/detection on 2 held-out runs x N=14"
+    assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(10.0, rel=1e-9)
+    assert rate > 10.0 + 3.0  # the rate counts unvisited landmarks too
+    assert source == "calibrated: rate for E[places] = 0.714 places/detection on 2 held-out runs x N=14 = 10"
+    # every held-out detection its own place: the expected places stay half a place below N
+    distinct = [loop_dataset(0, labels=[0, 1, 2, 3])]
+    rate, _ = calibration.prior_rate({"prior_rate": None}, n=14, held_out=distinct)
+    assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(13.5, rel=1e-9)
 
     def never_called():
         raise AssertionError("a configured parameter must not load the held-out runs")
@@ -145,14 +150,15 @@ def test_the_posterior_does_not_read_the_scored_runs_ground_truth(tmp_path):
 def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     cells = cells_with_cached_datasets(tmp_path, scored_meta={"aliasing_auc": 0.93})
     inference, baseline = (run_cell(cell) for cell in cells)
-    assert inference["source_prior_rate"] == "calibrated: 0.444 places/detection on 2 held-out runs x N=9"
-    assert inference["prior_rate"] == pytest.approx(4.0)
+    assert inference["source_prior_rate"] == "calibrated: rate for E[places] = 0.444 places/detection on 2 held-out runs x N=9 = 4"
+    assert ptm.PoissonPrior(inference["prior_rate"]).expected_places(9) == pytest.approx(4.0, rel=1e-9)
     assert inference["source_penalty_radius"].startswith("calibrated: 0.75 x ")
     assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.place_separation(
         calibration.calibration_datasets(cells[0])))
     assert inference["source_sigma_topology"] == "sensor spec: 2 x detection radius 0.5 m"
     assert inference["sigma_topology"] == pytest.approx(1.0)
-    assert inference["source_appearance"] == "empirical Bayes (independent) on 2 held-out runs"
+    assert inference["source_appearance"] == ("empirical Bayes (independent) on 2 held-out runs around each run's mean; "
+                                           "prior mean = this run's mean signature")
     assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs"
     assert inference["aliasing_auc"] == baseline["aliasing_auc"] == 0.93
 

@@ -61,7 +61,7 @@ def test_the_run_prior_mean_needs_the_scored_signatures_and_a_known_name():
         parse_experiment({"sweep": {"worlds": ["short_loop"], "seeds": [0]}, "appearance": {"prior_mean": "world"}})
 
 
-def test_the_option_at_its_old_behaviour_keeps_cell_definitions_and_another_value_makes_a_new_cell():
+def test_the_run_mean_is_the_default_and_the_global_mean_is_another_cell():
     from pathlib import Path
 
     from ptm_bench.evaluation.experiment import expand_cells
@@ -72,4 +72,4 @@ def test_the_option_at_its_old_behaviour_keeps_cell_definitions_and_another_valu
         (cell,) = expand_cells(parse_experiment(config), Path("unused"))
         return cell["definition"]
 
-    assert definition({}) == definition({"prior_mean": "global"}) != definition({"prior_mean": "run"})
+    assert definition({}) == definition({"prior_mean": "run"}) != definition({"prior_mean": "global"})

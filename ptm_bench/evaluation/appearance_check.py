@@ -17,7 +17,10 @@ its own decor, so a good model should rarely be fooled):
 
 The joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
 paper's independent-component model (``ptm.AppearanceModel``) are checked on
-the same runs. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
+the same runs, each with the prior mean the harness uses by default (the
+scored run's own mean signature, ``appearance.prior_mean = "run"``) and with
+the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
+:func:`ptm_bench.evaluation.calibration.fitted_appearance`, as in a sweep. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
 ``summary.md`` and ``pit.png`` to its output folder.
 
     $ ptm-bench appearance-check --worlds office --runs 30 --calibration-runs 10
@@ -33,14 +36,17 @@ from scipy import stats
 
 import ptm
 
+from ptm_bench.evaluation.calibration import fitted_appearance
 from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["APPEARANCE_MODELS", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
 
-#: The models checked: name -> how to fit it on labelled calibration datasets.
+#: The models checked: name -> (``appearance.model``, ``appearance.prior_mean``) of a sweep's config.
 APPEARANCE_MODELS = {
-    "joint": ptm.JointAppearanceModel.fit,
-    "independent": ptm.AppearanceModel.fit,
+    "independent": ("independent", "run"),
+    "joint": ("joint", "run"),
+    "independent (global mean)": ("independent", "global"),
+    "joint (global mean)": ("joint", "global"),
 }
 DEFAULT_WORLDS = {
     "office": "office",
@@ -71,10 +77,14 @@ def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, a
 
         calibration = datasets(range(CALIBRATION_FIRST_SEED, CALIBRATION_FIRST_SEED + calibration_runs))
         scored = datasets(range(runs))
-        for model_name, fit in APPEARANCE_MODELS.items():
+        for model_name, (model, prior_mean) in APPEARANCE_MODELS.items():
             started = time.perf_counter()
-            model = fit(calibration)
-            row, pits = _check(model, scored)
+
+            def fitted(dataset, model=model, prior_mean=prior_mean):
+                return fitted_appearance(calibration, model, prior_mean=prior_mean,
+                                         scored_signatures=dataset.signatures)[0]
+
+            row, pits = _check(fitted, scored)
             rows.append({"world": world_name, "model": model_name, "runs": runs,
                          "calibration_runs": calibration_runs, "aliasing": aliasing, "noise": noise,
                          "aliasing_auc": float(np.nanmean([d.meta.get("aliasing_auc", np.nan) for d in scored])),
@@ -85,12 +95,13 @@ def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, a
     return pd.DataFrame(rows), pd.DataFrame(pit_rows)
 
 
-def _check(model, datasets) -> tuple[dict, np.ndarray]:
+def _check(fitted, datasets) -> tuple[dict, np.ndarray]:
+    """``fitted(dataset)``: the appearance model a sweep would use to score ``dataset``."""
     same_factors, different_factors, pits = [], [], []
     for dataset in datasets:
         real = dataset.labels >= 0
         signatures, labels = dataset.signatures[real], dataset.labels[real]
-        term = model.bind(ptm.Dataset(signatures=signatures))
+        term = fitted(dataset).bind(ptm.Dataset(signatures=signatures))
         factors = ptm.pairwise_log_bayes_factors(term)
         upper = np.triu_indices(len(labels), 1)
         same = labels[upper[0]] == labels[upper[1]]

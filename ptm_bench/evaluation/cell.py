@@ -58,7 +58,7 @@ __all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior"]
 #: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
 #: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
 #: change, and a rerun of a sweep recomputes its cells instead of reusing their rows.
-CELL_VERSION = "ptm_bench.cell/2"  # a version label (it keeps its name when modules move)
+CELL_VERSION = "ptm_bench.cell/3"  # a version label (it keeps its name when modules move)
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000

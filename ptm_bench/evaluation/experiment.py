@@ -98,11 +98,12 @@ DEFAULTS = {
         # `ptm-bench appearance-check`, results/appearance_check/); "joint": Normal-Inverse-Wishart over the K-vector
         "model": "independent",
         "evidence": "corrected",  # "paper_eq19" (the printed formula) exists for the independent model only
-        # "global": one prior mean of a place's appearance for every world, fitted across the calibration runs
-        # (the paper); "run": the prior mean is the scored run's own mean signature (its detections, no labels)
-        # and the spread around it is fitted on calibration runs with each run's mean removed, so that
-        # differences between worlds (another decor library) do not count as differences between places
-        "prior_mean": "global",
+        # "run" (the default): the prior mean of a place's appearance is the scored run's own mean signature
+        # (its detections, no labels) and the spread around it is fitted on calibration runs with each run's
+        # mean removed, so that differences between worlds (another decor library) do not count as differences
+        # between places; "global": one prior mean for every world, fitted across the calibration runs (the
+        # paper), which reads a run whose places all look alike as one place
+        "prior_mean": "run",
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
 }
@@ -234,13 +235,6 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
     return cells
 
 
-#: Keys added to DEFAULTS after results existed, with the value that reproduces what the code did before
-#: them: at that value a key stays out of a cell's definition, so adding an option does not make every
-#: existing row stale (a cell that sets another value is a new cell).
-_ADDED_KEYS = {("appearance", "prior_mean"): "global"}
-_UNSET = object()
-
-
 def _definition(cell: dict) -> str:
     """A digest of everything that decides a cell's row.
 
@@ -255,10 +249,7 @@ def _definition(cell: dict) -> str:
     from ptm_bench.evaluation.cell import CELL_VERSION
     from ptm_bench.evaluation.datacache import world_identity
 
-    settings = {section: ({key: value for key, value in values.items()
-                           if _ADDED_KEYS.get((section, key), _UNSET) != value} if isinstance(values, dict) else values)
-                for section, values in cell["settings"].items()}
-    decisive = {**cell, "settings": settings,
+    decisive = {**cell,
                 "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
                 "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": CELL_VERSION}
     return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
