@@ -55,7 +55,10 @@ The noise matrix eps (S x (d + N)) is drawn once per bound term from the model's
 seed (common random numbers), so the estimate is a deterministic function of
 the partition (the mode t† is converged to rounding, so it is as history-free
 as P*) and the MCMC target is well defined; results are memoised per
-canonical partition in a bounded LRU cache.
+canonical partition in a bounded LRU cache. P* and H do not depend on the
+importance sampler's settings (seed, sample count, penalty), so terms that
+differ only in those can share one memo of fits (``OdometryTerm.rebind``):
+comparing seeds or penalties on one dataset then fits each partition once.
 
     >>> from ptm import Dataset, PoissonPrior, Posterior
     >>> steps = np.tile([2.0, 0.0, np.pi / 2], (4, 1)) + np.random.default_rng(0).normal(0.0, [0.05, 0.05, 0.02], (4, 3))
@@ -198,6 +201,8 @@ class OdometryTerm:
         if dataset.odometry is None:
             raise ValueError("the odometry model needs a dataset with odometry (dataset.odometry is None)")
         self.model = model
+        self.dataset = dataset  # the dataset bound (rebind binds other models to it)
+        self._fits: BoundedCache | None = None  # Laplace fits by partition, shared with rebound terms (rebind)
         self.n = dataset.n
         steps = self.n - 1
         if dataset.odometry_cov is not None:
@@ -249,13 +254,49 @@ class OdometryTerm:
         """Compute log P(O | T) without the cache (records the evaluation in the diagnostics)."""
         return self._evaluate_canonical(np.asarray(_canonical_labels(partition)))
 
+    #: The model's settings that the Laplace fit depends on (with the dataset); the others only sample.
+    FIT_SETTINGS = ("sigma_xy", "sigma_theta", "sigma_topology", "sparse_above")
+
+    def rebind(self, model: OdometryModel) -> "OdometryTerm":
+        """The term of ``model`` on this term's dataset, sharing one memo of Laplace fits with this term.
+
+        The fit of a partition (:meth:`fit`, the larger part of an evaluation's cost) depends on the
+        dataset and on ``FIT_SETTINGS`` only, so ``model`` must agree with this term's model on
+        those (else ``ValueError``, naming them) and may differ in the importance sampler: ``seed``,
+        ``n_importance``, ``penalty_radius``, ``max_penalty``, ``cache_size``. From this call on,
+        this term, the new one and every term rebound from either keep the fits of the partitions
+        they evaluate in one LRU memo (bounded by this term's ``cache_size``; a fit holds a factor
+        of H, so this costs memory that a lone term does not spend), and each partition is fitted
+        once between them. Values are those of ``model.bind(term.dataset)`` (a fit is a function
+        of the partition alone); the diagnostics' iterations and factorisations are those of the
+        fit used, however often it was reused. For checks of the Monte-Carlo error, such as the
+        spread of a posterior over importance seeds:
+
+            >>> from ptm import Dataset
+            >>> steps = np.tile([2.0, 0.0, np.pi / 2], (4, 1))                     # a 2 m square driven once
+            >>> term = OdometryModel(0.05, 0.02, 0.1, 1.0, 100.0, seed=0).bind(Dataset(odometry=steps))
+            >>> others = [term.rebind(OdometryModel(0.05, 0.02, 0.1, 1.0, 100.0, seed=s)) for s in (1, 2)]
+            >>> values = [t.log_likelihood([0, 1, 2, 3, 0]) for t in (term, *others)]   # one fit, three samplers
+        """
+        differing = [name for name in self.FIT_SETTINGS if getattr(model, name) != getattr(self.model, name)]
+        if differing:
+            raise ValueError("rebind shares Laplace fits, which depend on "
+                             + ", ".join(f"{name} (this term's model: {getattr(self.model, name)!r}, "
+                                         f"the new one: {getattr(model, name)!r})" for name in differing)
+                             + "; bind the model to the dataset instead")
+        if self._fits is None:
+            self._fits = BoundedCache(self.model.cache_size)
+        term = OdometryTerm(model, self.dataset)
+        term._fits = self._fits
+        return term
+
     def _evaluate_canonical(self, labels: np.ndarray) -> OdometryEvaluation:
         if len(labels) != self.n:
             raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
         started = time.perf_counter()
         if self.n == 1:  # no free pose: the integral over a 0-dimensional space is 1
             return OdometryEvaluation(0.0, 0.0, 0.0, float(self.model.n_importance), 0, 0, True, np.zeros(0))
-        fit = self.fit(labels)
+        fit = self._shared_fit(labels)
         if fit.factor is None:  # no minimum and no proposal: the partition gets probability 0
             evaluation = OdometryEvaluation(-math.inf, -math.inf, math.inf, 0.0, fit.iterations,
                                             fit.factorisations, False, fit.x)
@@ -320,6 +361,17 @@ class OdometryTerm:
         factorisations = sum(fit.factorisations for fit in fits)
         return dataclasses.replace(best, iterations=iterations, factorisations=factorisations)
 
+    def _shared_fit(self, labels: np.ndarray) -> LaplaceFit:
+        """:meth:`fit`, from the memo that rebound terms share (:meth:`rebind`) when there is one."""
+        if self._fits is None:
+            return self.fit(labels)
+        key = tuple(labels.tolist())
+        fit = self._fits.get(key)
+        if fit is None:
+            fit = self.fit(labels)
+            self._fits.put(key, fit)
+        return fit
+
     def mode_poses(self, partition) -> np.ndarray:
         """The optimised map of a topology: the (N, 3) detection poses (x, y, theta) of the Laplace mode P*.
 
@@ -334,7 +386,7 @@ class OdometryTerm:
             raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
         if self.n == 1:
             return np.zeros((1, 3))
-        fit = self.fit(labels)
+        fit = self._shared_fit(labels)
         if not fit.converged:
             raise ValueError(f"the pose graph of partition {tuple(labels.tolist())} has no converged mode "
                              f"({fit.failure})")

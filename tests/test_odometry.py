@@ -231,6 +231,34 @@ def test_the_value_is_a_deterministic_function_of_the_partition():
     assert other_seed.log_likelihood(partitions[0]) != warm.log_likelihood(partitions[0])
 
 
+def test_rebound_terms_share_the_fits_and_give_the_values_of_fresh_terms(monkeypatch):
+    dataset = square_loop_dataset(10, sigma_xy=0.2, sigma_theta=0.05)
+    fits = []
+    original_fit = ptm.pose_graph.PoseGraph.fit
+    monkeypatch.setattr(ptm.pose_graph.PoseGraph, "fit",
+                        lambda graph, start, partition: fits.append(1) or original_fit(graph, start, partition))
+    partitions = [[0, 1, 2, 3, 0, 1, 2, 3, 0, 1], list(range(10)), [0, 1, 2, 3, 4, 1, 2, 3, 0, 5],
+                  [0, 0, 1, 1, 2, 2, 3, 3, 4, 4], [0, 1, 2, 3, 0, 1, 2, 3, 1, 0]]
+    models = [ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 50.0, n_importance=100, seed=11),
+              ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 50.0, n_importance=100, seed=12),  # the sampler's settings
+              ptm.OdometryModel(0.2, 0.05, 0.3, 3.0, 10.0, n_importance=40, seed=13, cache_size=2)]
+    first = models[0].bind(dataset)
+    terms = [first, first.rebind(models[1])]
+    terms.append(terms[1].rebind(models[2]))  # rebound from a rebound term: still the one memo
+    values = [[term.log_likelihood(labels) for labels in partitions] for term in terms]
+    assert len(fits) == 2 * len(partitions)  # two starts per partition, once between the three terms
+    assert terms[2].evaluate(partitions[0]).iterations == first.evaluate(partitions[0]).iterations
+    assert len(fits) == 2 * len(partitions)
+    for model, row in zip(models, values):
+        fresh = model.bind(dataset)
+        assert row == pytest.approx([fresh.log_likelihood(labels) for labels in partitions], rel=1e-12, abs=0)
+    assert len(set(row[2] for row in values)) == 3  # and the samplers do differ
+    for name, value in (("sigma_xy", 0.3), ("sigma_theta", 0.1), ("sigma_topology", 0.5), ("sparse_above", 3)):
+        changed = ptm.OdometryModel(**{"sigma_xy": 0.2, "sigma_theta": 0.05, "sigma_topology": 0.3, name: value})
+        with pytest.raises(ValueError, match=name):
+            first.rebind(changed)
+
+
 def test_weighting_the_samples_in_chunks_changes_nothing(monkeypatch):
     dataset = square_loop_dataset(100, sigma_xy=0.2, sigma_theta=0.05)
     model = ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 50.0, n_importance=100, seed=3)
