@@ -6,8 +6,23 @@ opened so far or opens a new one. The
 score of the decomposable terms is carried along the enumeration — adding i
 to set j changes only that set's score — and each set's score is memoised by
 its bitmask, so each of the 2^N - 1 possible sets is scored once. Global
-terms (odometry) are evaluated at the leaves. Bell(10) = 115 975,
+terms (odometry) are evaluated afterwards. Bell(10) = 115 975,
 Bell(12) = 4 213 597; sizes above ``max_n`` are refused.
+
+*Bounded skipping of global terms.* When every global term offers an upper
+bound B on its log-likelihood over all partitions (the odometry term's is its
+all-singletons value without penalty), the partitions are visited in
+decreasing cheap score c(T) (prior + appearance) and evaluated until the
+remaining ones, even at the bound, could hold at most e^-SKIP_NATS of the
+mass already found: log sum_{rest} exp(c(T) + B) < log Z_evaluated -
+``SKIP_NATS``. The skipped partitions are left out of the PTM (probability 0
+where the true value is below e^-40 relative), and the diagnostics report
+how many were evaluated and the bound on the skipped mass. Since an
+estimate (importance sampling) could in principle exceed the bound, any
+evaluated value above B + ``BOUND_SLACK_NATS`` turns skipping off for the
+rest of the enumeration. With appearance at low aliasing most partitions are
+skipped; with odometry alone (a prior that depends on the number of places
+only) few are.
 
     >>> import numpy as np
     >>> from ptm import Dataset, PoissonPrior, Posterior
@@ -27,11 +42,20 @@ from scipy.special import logsumexp
 from .partitions import Partition, bell
 from .result import PTM
 
-__all__ = ["exact_posterior"]
+__all__ = ["BOUND_SLACK_NATS", "SKIP_NATS", "exact_posterior"]
+
+#: Partitions whose total mass, even at the global terms' upper bound, is below e^-SKIP_NATS of the mass
+#: already evaluated are not evaluated.
+SKIP_NATS = 40.0
+#: An evaluated global log-likelihood this far above its bound turns skipping off (the bound was not one).
+BOUND_SLACK_NATS = 1.0
 
 
-def exact_posterior(posterior, max_n: int = 12) -> PTM:
-    """Enumerate and normalise the posterior over all partitions of N detections."""
+def exact_posterior(posterior, max_n: int = 12, skip: bool = True) -> PTM:
+    """Enumerate and normalise the posterior over all partitions of N detections.
+
+    ``skip=False`` evaluates the global terms on every partition even when a bound allows skipping.
+    """
     n = posterior.n
     if n > max_n:
         raise ValueError(
@@ -43,7 +67,6 @@ def exact_posterior(posterior, max_n: int = 12) -> PTM:
     partitions = np.empty((total, n), dtype=np.int8 if n < 128 else np.int16)
     log_probs = np.empty(total)
     log_prior = posterior.log_prior_by_size
-    has_global = posterior.has_global_terms
     bits = [1 << i for i in range(n)]
     mask_scores: dict[int, float] = {0: 0.0}
 
@@ -92,17 +115,43 @@ def exact_posterior(posterior, max_n: int = 12) -> PTM:
             sets_before[detection] = len(masks)
             continue
         partitions[leaf] = labels
-        value = log_prior[len(masks)] + running[n]
-        if has_global:
-            value += posterior.global_log_prob(Partition.from_labels(labels))
-        log_probs[leaf] = value
+        log_probs[leaf] = log_prior[len(masks)] + running[n]
         leaf += 1
 
+    diagnostics = {"partitions": total}
+    if posterior.has_global_terms:
+        evaluated, skipped_mass = _add_global_terms(posterior, partitions, log_probs, skip)
+        partitions, log_probs = partitions[evaluated], log_probs[evaluated]
+        diagnostics.update(global_evaluations=int(evaluated.size), skipped_mass_bound=skipped_mass)
     log_normaliser = float(logsumexp(log_probs))
     if not np.isfinite(log_normaliser):
         raise ValueError("every partition has zero posterior probability")
     probabilities = np.exp(log_probs - log_normaliser)
-    diagnostics = {"partitions": total, "log_normaliser": log_normaliser,
-                   "wall_s": time.perf_counter() - started}
+    diagnostics.update(log_normaliser=log_normaliser, wall_s=time.perf_counter() - started)
     diagnostics.update(posterior.diagnostics())
     return PTM(partitions, probabilities, "exact", diagnostics)
+
+
+def _add_global_terms(posterior, partitions: np.ndarray, log_probs: np.ndarray, skip: bool) -> tuple[np.ndarray, float]:
+    """Add the global terms to ``log_probs`` in place, best cheap score first, skipping what the bound allows.
+
+    Returns the indices of the evaluated partitions (in enumeration order) and the bound on the skipped
+    mass relative to the evaluated mass (0 when nothing was skipped).
+    """
+    bound = posterior.global_log_prob_upper_bound() if skip else None
+    order = np.argsort(-log_probs, kind="stable")
+    # rest[k]: log of the cheap mass of the partitions from the k-th best on
+    rest = np.append(np.logaddexp.accumulate(log_probs[order][::-1])[::-1], -np.inf)
+    log_evaluated = -np.inf
+    count = 0
+    for index in order:
+        if bound is not None and rest[count] + bound < log_evaluated - SKIP_NATS:
+            break
+        value = posterior.global_log_prob(Partition.from_labels(partitions[index]))
+        if bound is not None and value > bound + BOUND_SLACK_NATS:
+            bound = None  # not a bound after all: evaluate everything
+        log_probs[index] += value
+        log_evaluated = np.logaddexp(log_evaluated, log_probs[index])
+        count += 1
+    skipped_mass = 0.0 if count == order.size else float(np.exp(rest[count] + bound - log_evaluated))
+    return np.sort(order[:count]), skipped_mass

@@ -315,6 +315,17 @@ class OdometryTerm:
         self._record(evaluation, time.perf_counter() - started)
         return evaluation
 
+    def log_likelihood_upper_bound(self) -> float:
+        """A bound no partition's log P(O | T) exceeds: the all-singletons value without penalty.
+
+        The ties and the penalty are >= 0, so exp(-E_T - Pen_T) <= exp(-E_all-distinct) at every P, and
+        the all-distinct energy is a chain of independent Gaussian steps (docs/model.md §3.3):
+        sum_k 1/2 log det(2 pi Sigma_k). :func:`ptm.exact_posterior` uses it to skip partitions whose
+        cheap score leaves them no chance of mattering.
+        """
+        _, log_det_whitening = np.linalg.slogdet(self.graph.sqrt_information)  # log |det U_k| = -1/2 log det Sigma_k
+        return float(1.5 * (self.n - 1) * math.log(2.0 * math.pi) - log_det_whitening.sum())
+
     def diagnostics(self) -> dict:
         """Cache use, importance-sampling quality and optimiser effort so far.
 

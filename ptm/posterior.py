@@ -78,6 +78,13 @@ class Posterior:
             total += _checked(term.log_likelihood(partition), term)
         return total
 
+    def global_log_prob_upper_bound(self) -> float | None:
+        """An upper bound on :meth:`global_log_prob` over all partitions, or None if a global term offers none
+        (``log_likelihood_upper_bound()``)."""
+        if not all(hasattr(term, "log_likelihood_upper_bound") for term in self.global_terms):
+            return None
+        return sum(_checked(term.log_likelihood_upper_bound(), term) for term in self.global_terms)
+
     @property
     def has_global_terms(self) -> bool:
         return bool(self.global_terms)
