@@ -94,6 +94,8 @@ IMPORTANCE_CHUNK_BYTES = 128 * 1024
 DEFENSIVE_SHARE = 0.5
 #: Failed fits listed by partition in the diagnostics (all of them are counted).
 FAILURES_KEPT = 20
+#: Bytes the memo of Laplace modes (:meth:`OdometryTerm.laplace_mode`) may hold: 8 d bytes a partition.
+MODE_MEMO_BYTES = 32 * 1024 * 1024
 
 
 def landmark_penalty(positions, pairs, penalty_radius: float, max_penalty: float) -> np.ndarray:
@@ -192,7 +194,9 @@ class OdometryTerm:
     dataset), ``noise_columns`` (the common random numbers, (d + N, S)
     standard normals) and ``sample_chunks`` (the slices of the samples weighted
     together). :meth:`mode_poses` is the optimised map of a topology (drawn by the
-    harness's figures and written by :mod:`ptm.export`).
+    harness's figures and written by :mod:`ptm.export`); :meth:`laplace_mode` is
+    its state vector P*, remembered for recently evaluated partitions (what the
+    odometry surrogate of :mod:`ptm.surrogate` expands around).
     """
 
     name = "odometry"
@@ -227,6 +231,7 @@ class OdometryTerm:
         self._pair_first, self._pair_second = np.triu_indices(self.n, k=1)
         self._dead_reckoning = self.graph.dead_reckoning()
         self._cache = BoundedCache(model.cache_size)
+        self._modes = BoundedCache(max(1, MODE_MEMO_BYTES // (8 * max(self.dimension, 1))))
         self._evaluations = 0
         self._failures = 0
         self._failed_fits = 0  # failures without a usable fit: log-likelihood -inf
@@ -301,6 +306,7 @@ class OdometryTerm:
             evaluation = OdometryEvaluation(-math.inf, -math.inf, math.inf, 0.0, fit.iterations,
                                             fit.factorisations, False, fit.x)
         else:
+            self._modes.put(tuple(labels.tolist()), fit.x)
             evaluation = self._importance_sample(fit, labels)
         if math.isnan(evaluation.log_likelihood) or evaluation.log_likelihood == math.inf:
             raise ValueError(
@@ -402,6 +408,29 @@ class OdometryTerm:
             raise ValueError(f"the pose graph of partition {tuple(labels.tolist())} has no converged mode "
                              f"({fit.failure})")
         return poses_from_vector(fit.x)
+
+    def laplace_mode(self, partition) -> np.ndarray | None:
+        """P*, the (d,) state vector of the Laplace fit that defines log P(O | T) (:meth:`fit`), or None where
+        that fit has no Gaussian (the partition's log-likelihood is -inf).
+
+        Remembered from the partition's evaluation (a bounded memo of ``MODE_MEMO_BYTES``), else fitted
+        now; either way the same vector, since the fit is a function of the partition alone. Unlike
+        :meth:`mode_poses` an unconverged fit's last iterate is returned: its Gaussian is the one the
+        estimate used.
+        """
+        labels = _canonical_labels(partition)
+        if len(labels) != self.n:
+            raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
+        if self.n == 1:
+            return np.zeros(0)
+        mode = self._modes.get(labels)
+        if mode is None:
+            fit = self.fit(np.asarray(labels))
+            if fit.factor is None:
+                return None
+            mode = fit.x
+            self._modes.put(labels, mode)
+        return mode
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
