@@ -28,12 +28,13 @@ from .prior import PoissonPrior
 from .result import PTM, total_variation
 from .sampler import mcmc
 from .tempering import tempered_mcmc
+from .tie_normaliser import TieNormaliser
 
 __all__ = [
     "AppearanceModel", "JointAppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
     "bell", "canonical", "exact_posterior", "export", "features", "inverse_gamma_from_mean_variance",
     "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
     "predictive_pit",
-    "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel",
+    "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel", "TieNormaliser",
 ]
 __version__ = "0.1.0"

@@ -1,0 +1,64 @@
+"""TieNormaliser: the normaliser of the odometry model's ties for landmarks spread over an area."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate
+
+import ptm
+
+
+def _tie_energy(positions, sigma):
+    positions = np.asarray(positions, dtype=float)
+    return sum(np.sum((positions[i] - positions[j]) ** 2) for i in range(len(positions))
+               for j in range(i + 1, len(positions))) / (2.0 * sigma ** 2)
+
+
+@pytest.mark.parametrize("size", [2, 3])
+def test_the_normaliser_is_the_integral_of_the_tie_density(size):
+    # In one dimension, with the set's mean held fixed (its integral is the area, A), the tie integrates to
+    # sqrt(n) (2 pi sigma^2 / n)^((n - 1) / 2); in two dimensions to the square of that, n (2 pi sigma^2 / n)^(n - 1).
+    sigma = 0.7
+
+    def density(*offsets):  # positions = mean + offsets, the last offset fixed by a zero mean
+        positions = np.append(offsets, -sum(offsets))[:, None]
+        return math.exp(-_tie_energy(positions, sigma))
+
+    numeric, _ = integrate.nquad(density, [(-8.0, 8.0)] * (size - 1))
+    one_dimension = numeric * size  # the Jacobian of (t_1 .. t_n) -> (mean, n - 1 offsets) is n
+    assert one_dimension == pytest.approx(math.sqrt(size) * (2 * math.pi * sigma ** 2 / size) ** ((size - 1) / 2),
+                                          rel=1e-7)
+    area = 50.0
+    normaliser = ptm.TieNormaliser(area, sigma)
+    expected = (size - 1) * math.log(area) - math.log(one_dimension ** 2)
+    assert normaliser.block_log_likelihood(tuple(range(size))) == pytest.approx(expected, rel=1e-7)
+    assert normaliser.block_log_likelihood((4,)) == 0.0
+
+
+def test_with_odometry_alone_it_moves_mass_from_all_distinct_to_the_revisits():
+    rng = np.random.default_rng(0)
+    labels = np.arange(7) % 4
+    corners = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 5.0], [0.0, 5.0]])
+    poses = np.column_stack([corners[labels], ptm.se2.wrap_angle(labels * np.pi / 2)])
+    odometry = ptm.se2.relative_pose(poses[:-1], poses[1:]) + rng.normal(0.0, [0.1, 0.1, 0.03], size=(6, 3))
+    dataset = ptm.Dataset(odometry=odometry, labels=labels)
+    model = ptm.OdometryModel(0.1, 0.03, sigma_topology=0.5, penalty_radius=2.0, max_penalty=0.0, seed=1)
+    paper = ptm.exact_posterior(ptm.Posterior(dataset, ptm.PoissonPrior(4.0), [model]))
+    normalised = ptm.exact_posterior(ptm.Posterior(
+        dataset, ptm.PoissonPrior(4.0), [model, ptm.TieNormaliser.from_dead_reckoning(dataset, 0.5, margin=1.0)]))
+    # without a penalty the paper's model can only prefer all-distinct; the normalised ties find the loop
+    assert paper.map() == tuple(range(7))
+    assert normalised.map() == tuple(labels)
+    assert normalised.probability(labels) > 0.5 > paper.probability(labels)
+
+
+def test_bad_areas_and_margins_are_refused():
+    with pytest.raises(ValueError, match="area"):
+        ptm.TieNormaliser(0.0, 1.0)
+    with pytest.raises(ValueError, match="margin"):
+        ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(odometry=np.ones((2, 3))), 1.0, margin=-1.0)
+    with pytest.raises(ValueError, match="no area"):
+        ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(odometry=np.zeros((2, 3))), 1.0, margin=0.0)
+    with pytest.raises(ValueError, match="odometry"):
+        ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(signatures=np.ones((2, 2))), 1.0, margin=1.0)
