@@ -12,9 +12,16 @@ sampler re-scores only what changed.
   uniformly; the reverse merge has probability 1/2 * 1/C(M+1, 2).
 * :class:`GibbsReassign` — one detection moved to a set (or a new one) drawn
   from its conditional under the cheap terms (prior + decomposable models).
+* :class:`MapReassign` — the same, the conditional raised by the odometry
+  surrogate's prediction under the current map (:mod:`ptm.surrogate`); its
+  reverse probability is computed from the map of T'.
 * :class:`SequentialSplitMerge` — the sequentially-allocated merge-split of
   Dahl (2003): two anchors; if they share a set, split it by allocating the
   other members one by one in proportion to the cheap terms; else merge.
+* :class:`GuidedSplitMerge` — the same with data-driven anchors: a merge
+  partner drawn in proportion to the pair's Bayes factor exp(a_ij), a split
+  anchor in proportion to exp(-a_ij) among its set; the Hastings ratio
+  includes both anchor probabilities.
 
     >>> import math
     >>> from ptm import Dataset, PoissonPrior, Posterior
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +44,7 @@ import numpy as np
 from .partitions import Block, Partition, log_stirling2_two
 
 __all__ = [
-    "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "SequentialSplitMerge",
+    "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "MapReassign", "SequentialSplitMerge", "GuidedSplitMerge",
     "merge_log_q_ratio", "split_log_q_ratio", "initial_state", "apply_proposal",
 ]
 
@@ -61,11 +69,17 @@ class ChainState:
 
 @dataclass(frozen=True)
 class Proposal:
-    """Replace the sets at indices ``removed`` of the current state by the sets ``added``."""
+    """Replace the sets at indices ``removed`` of the current state by the sets ``added``.
+
+    ``log_q_ratio`` is log q(T'->T) - log q(T->T'), or, for a move whose reverse probability needs
+    what only T' gives (its map estimate), -log q(T->T') with ``reverse_log_q(T')`` = log q(T'->T);
+    the sampler then evaluates the proposal exactly, without a screening first stage.
+    """
 
     removed: tuple[int, ...]
     added: tuple[Block, ...]
     log_q_ratio: float
+    reverse_log_q: Callable[[Partition], float] | None = None
 
 
 def initial_state(posterior, labels) -> ChainState:
@@ -186,44 +200,114 @@ class GibbsReassign:
         if n == 1:
             return None
         detection = _uniform_index(rng, n)
-        blocks = state.blocks
-        home = state.partition.labels[detection]
-        home_block = blocks[home]
-        rest = tuple(member for member in home_block if member != detection)
-        sets_without = len(blocks) - (0 if rest else 1)
-        log_prior = posterior.log_prior_by_size
-        score = posterior.block_score
-
-        targets: list[int] = []  # -1 stands for "a new singleton"
-        weights: list[float] = []
-        for index, block in enumerate(blocks):
-            if index == home:
-                if rest:
-                    targets.append(index)
-                    weights.append(state.block_scores[home] - score(rest) + log_prior[sets_without])
-                continue
-            targets.append(index)
-            weights.append(score(_with_member(block, detection)) - state.block_scores[index]
-                           + log_prior[sets_without])
-        targets.append(-1)
-        weights.append(score((detection,)) + log_prior[sets_without + 1])
-
-        log_weights = np.asarray(weights)
-        probabilities = np.exp(log_weights - log_weights.max())
-        cumulative = np.cumsum(probabilities)
-        pick = int(np.searchsorted(cumulative, rng.random() * cumulative[-1], side="right"))
-        pick = min(pick, len(targets) - 1)
+        home, rest, targets, weights = _destinations(posterior, state.partition, state.block_scores, detection)
+        pick = _draw(rng, weights)
         target = targets[pick]
         current = home if rest else -1
         if target == current:
             return None
-        log_q_ratio = weights[targets.index(current)] - weights[pick]
-        if target == -1:
-            return Proposal((home,), (rest, (detection,)), log_q_ratio)
-        joined = _with_member(blocks[target], detection)
-        if rest:
-            return Proposal((home, target), (rest, joined), log_q_ratio)
-        return Proposal((home, target), (joined,), log_q_ratio)
+        removed, added = _reassigned(state.blocks, home, rest, detection, target)
+        return Proposal(removed, added, weights[targets.index(current)] - weights[pick])
+
+
+class MapReassign:
+    """Move one detection to a set drawn from a prediction of its full conditional, odometry included.
+
+    As :class:`GibbsReassign`, with each candidate's weight raised by the
+    surrogate's prediction of the change of the global terms under the current
+    map (``surrogate.predicted_change``, :mod:`ptm.surrogate`): the detection
+    goes preferably where the current map puts it. The reverse move's
+    probability needs the map of T' (``Proposal.reverse_log_q``), so the
+    sampler evaluates such a proposal exactly instead of screening it; the
+    weights then make it likely to be accepted.
+    """
+
+    name = "map_reassign"
+
+    def __init__(self, surrogate):
+        self.surrogate = surrogate
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        n = posterior.n
+        if n == 1:
+            return None
+        detection = _uniform_index(rng, n)
+        home, rest, targets, weights = self._weights(posterior, state.partition, state.block_scores, detection)
+        pick = _draw(rng, weights)
+        target = targets[pick]
+        if target == (home if rest else -1):
+            return None
+        removed, added = _reassigned(state.blocks, home, rest, detection, target)
+        forward = weights[pick] - float(np.logaddexp.reduce(weights))
+
+        def reverse_log_q(after: Partition) -> float:
+            """log q(T' -> T): ``detection`` drawn again and sent back to ``rest`` (or alone), under T's map."""
+            scores = [posterior.block_score(block) for block in after.blocks]
+            _, _, targets_after, weights_after = self._weights(posterior, after, scores, detection)
+            back = after.blocks.index(rest) if rest else -1
+            return weights_after[targets_after.index(back)] - float(np.logaddexp.reduce(weights_after))
+
+        return Proposal(removed, added, -forward, reverse_log_q)
+
+    def _weights(self, posterior, partition: Partition, block_scores, detection: int):
+        """:func:`_destinations` with each weight raised by the predicted change of the global terms."""
+        blocks = partition.blocks
+        home, rest, targets, weights = _destinations(posterior, partition, block_scores, detection)
+        current = home if rest else -1
+        for position, target in enumerate(targets):
+            if target != current:
+                removed, added = _reassigned(blocks, home, rest, detection, target)
+                weights[position] += self.surrogate.predicted_change(partition, [blocks[k] for k in removed], added)
+        return home, rest, targets, weights
+
+
+def _destinations(posterior, partition: Partition, block_scores, detection: int):
+    """Where ``detection`` may go and the log weights of its cheap conditional there.
+
+    Returns its set's index ``home``, the rest of that set ``rest``, the
+    ``targets`` (set indices; -1 stands for a new singleton; ``home`` itself
+    when ``rest`` is not empty) and their log weights: s(B + i) - s(B) +
+    log P_prior(N, M_-i) for a set B, s({i}) + log P_prior(N, M_-i + 1) for a
+    new one (relative to the partition without the detection, so the same from
+    either side of a move).
+    """
+    blocks = partition.blocks
+    home = partition.labels[detection]  # block j carries label j
+    rest = tuple(member for member in blocks[home] if member != detection)
+    sets_without = len(blocks) - (0 if rest else 1)
+    log_prior = posterior.log_prior_by_size
+    score = posterior.block_score
+    targets: list[int] = []
+    weights: list[float] = []
+    for index, block in enumerate(blocks):
+        if index == home:
+            if rest:
+                targets.append(index)
+                weights.append(block_scores[home] - score(rest) + log_prior[sets_without])
+            continue
+        targets.append(index)
+        weights.append(score(_with_member(block, detection)) - block_scores[index] + log_prior[sets_without])
+    targets.append(-1)
+    weights.append(score((detection,)) + log_prior[sets_without + 1])
+    return home, rest, targets, weights
+
+
+def _reassigned(blocks, home: int, rest: Block, detection: int, target: int):
+    """The sets removed (indices) and added when ``detection`` leaves set ``home`` for ``target`` (-1: alone)."""
+    if target == -1:
+        return (home,), (rest, (detection,))
+    joined = _with_member(blocks[target], detection)
+    if rest:
+        return (home, target), (rest, joined)
+    return (home, target), (joined,)
+
+
+def _draw(rng, log_weights) -> int:
+    """An index drawn with probability proportional to exp(log_weights)."""
+    log_weights = np.asarray(log_weights)
+    cumulative = np.cumsum(np.exp(log_weights - log_weights.max()))
+    pick = int(np.searchsorted(cumulative, rng.random() * cumulative[-1], side="right"))
+    return min(pick, len(log_weights) - 1)
 
 
 class SequentialSplitMerge:
@@ -243,45 +327,132 @@ class SequentialSplitMerge:
         if n == 1:
             return None
         first, second = _distinct_pair(rng, n)
-        labels = state.partition.labels
-        blocks = state.blocks
-        if labels[first] == labels[second]:
-            home = labels[first]
-            others = [member for member in blocks[home] if member not in (first, second)]
-            part_first, part_second, log_q = self._allocate(rng, posterior, first, second, others)
-            return Proposal((home,), (part_first, part_second), -log_q)
-        block_first, block_second = blocks[labels[first]], blocks[labels[second]]
-        others = [member for member in block_first + block_second if member not in (first, second)]
-        _, _, log_q = self._allocate(rng, posterior, first, second, others,
-                                     forced=set(block_first))
-        merged = tuple(sorted(block_first + block_second))
-        return Proposal((labels[first], labels[second]), (merged,), log_q)
+        return _split_or_merge(rng, state, posterior.block_score, first, second)
+
+
+class GuidedSplitMerge:
+    """Sequentially-allocated split-merge whose anchors are drawn from the data: the pairs' Bayes factors.
+
+    The pair affinity a_ij = s({i, j}) - s({i}) - s({j}) is the cheap terms'
+    log Bayes factor of i and j being one place (appearance, paper eq. 15-19),
+    a fixed matrix. The first anchor i is uniform. With probability 1/2 the
+    move seeks a merge: the second anchor j is drawn among the detections
+    outside i's set with probability p_T(j | i) proportional to exp(a_ij);
+    otherwise it seeks a split: j is drawn among the other members of i's set
+    in proportion to exp(-a_ij), the least alike first. Each draw mixes in
+    ``exploration`` of a uniform one over the same candidates. Then, as in
+    :class:`SequentialSplitMerge`, the anchors' sets are merged or their set is
+    split with the other members allocated by the cheap scores. The reverse
+    move draws the same ordered pair from the other side (a merge's reverse
+    seeks a split, and vice versa), so for each pair the Hastings term is
+
+        log p_T'(j | i) - log p_T(j | i)  +/-  log q_allocation.
+
+    Which of these proposals the odometry allows is left to the surrogate's
+    first stage of delayed acceptance.
+    """
+
+    name = "guided_split_merge"
+
+    def __init__(self, posterior, exploration: float = 0.1):
+        if not 0.0 < exploration <= 1.0:
+            raise ValueError(f"exploration must lie in (0, 1], got {exploration!r}")
+        self.exploration = float(exploration)
+        score = posterior.block_score
+        singles = np.array([score((i,)) for i in range(posterior.n)])
+        self.pair_affinity = np.zeros((posterior.n, posterior.n))
+        for i in range(posterior.n):
+            for j in range(i + 1, posterior.n):
+                self.pair_affinity[i, j] = self.pair_affinity[j, i] = score((i, j)) - singles[i] - singles[j]
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        n = posterior.n
+        if n == 1:
+            return None
+        first = _uniform_index(rng, n)
+        labels = np.asarray(state.partition.labels)
+        seeks_merge = rng.random() < 0.5
+        candidates = self._candidates(labels, first, seeks_merge)
+        if not candidates.any():
+            return None
+        indices = np.flatnonzero(candidates)
+        probabilities = self._anchor_probabilities(first, candidates, seeks_merge)[indices]
+        pick = _draw(rng, np.log(probabilities))
+        second = int(indices[pick])
+        proposal = _split_or_merge(rng, state, posterior.block_score, first, second)
+        after = labels.copy()
+        for index, block in enumerate(proposal.added):
+            after[list(block)] = n + index
+        return Proposal(proposal.removed, proposal.added,
+                        proposal.log_q_ratio + self.anchors_log_ratio(after, first, second, seeks_merge,
+                                                                      probabilities[pick]))
+
+    def anchors_log_ratio(self, after: np.ndarray, first: int, second: int, seeks_merge: bool,
+                          forward: float) -> float:
+        """log p_T'(second | first) - log ``forward``: the reverse move draws the second anchor from T'
+        (labels ``after``), seeking the opposite of this move (a split after a merge)."""
+        reverse = self._anchor_probabilities(first, self._candidates(after, first, not seeks_merge), not seeks_merge)
+        return math.log(reverse[second]) - math.log(forward)
 
     @staticmethod
-    def _allocate(rng, posterior, first, second, others, forced=None):
-        """Allocate ``others`` to the anchors' parts in random order; return the parts and log q.
+    def _candidates(labels: np.ndarray, first: int, seeks_merge: bool) -> np.ndarray:
+        """Where the second anchor may be: outside the first's set (a merge) or inside it (a split)."""
+        same = labels == labels[first]
+        if seeks_merge:
+            return ~same
+        same[first] = False
+        return same
 
-        With ``forced`` (the members of the first anchor's actual set), replay
-        that allocation and return the probability the procedure gives it.
-        """
-        score = posterior.block_score
-        part_first, part_second = (first,), (second,)
-        log_q = 0.0
-        for position in rng.permutation(len(others)):
-            member = others[position]
-            grown_first = _with_member(part_first, member)
-            grown_second = _with_member(part_second, member)
-            gain_first = score(grown_first) - score(part_first)
-            gain_second = score(grown_second) - score(part_second)
-            log_norm = float(np.logaddexp(gain_first, gain_second))
-            if forced is not None:
-                joins_first = member in forced
-            else:
-                joins_first = rng.random() < math.exp(gain_first - log_norm)
-            if joins_first:
-                part_first = grown_first
-                log_q += gain_first - log_norm
-            else:
-                part_second = grown_second
-                log_q += gain_second - log_norm
-        return part_first, part_second, log_q
+    def _anchor_probabilities(self, first: int, candidates: np.ndarray, seeks_merge: bool) -> np.ndarray:
+        """p(j | first) over all j: (1 - exploration) softmax(+-a_first,j) + exploration uniform, on ``candidates``."""
+        affinity = self.pair_affinity[first]
+        log_weights = np.where(candidates, affinity if seeks_merge else -affinity, -np.inf)
+        weights = np.exp(log_weights - log_weights.max())
+        return ((1.0 - self.exploration) * weights / weights.sum()
+                + self.exploration * candidates / np.count_nonzero(candidates))
+
+
+def _split_or_merge(rng, state: ChainState, score, first: int, second: int) -> Proposal:
+    """Split the anchors' set, the other members allocated by ``score``, if they share one; else merge their
+    sets. The Hastings term is the allocation's only (the anchors' own probabilities are the caller's)."""
+    labels = state.partition.labels
+    blocks = state.blocks
+    if labels[first] == labels[second]:
+        home = labels[first]
+        others = [member for member in blocks[home] if member not in (first, second)]
+        part_first, part_second, log_q = _allocate(rng, score, first, second, others)
+        return Proposal((home,), (part_first, part_second), -log_q)
+    block_first, block_second = blocks[labels[first]], blocks[labels[second]]
+    others = [member for member in block_first + block_second if member not in (first, second)]
+    _, _, log_q = _allocate(rng, score, first, second, others, forced=set(block_first))
+    merged = tuple(sorted(block_first + block_second))
+    return Proposal((labels[first], labels[second]), (merged,), log_q)
+
+
+def _allocate(rng, score, first, second, others, forced=None):
+    """Allocate ``others`` to the parts of anchors ``first`` and ``second`` in random order, each member
+    joining a part in proportion to exp(score(part + member) - score(part)); return the parts and log q.
+
+    With ``forced`` (the members of the first anchor's actual set), replay
+    that allocation and return the probability the procedure gives it.
+    """
+    part_first, part_second = (first,), (second,)
+    log_q = 0.0
+    for position in rng.permutation(len(others)):
+        member = others[position]
+        grown_first = _with_member(part_first, member)
+        grown_second = _with_member(part_second, member)
+        gain_first = score(grown_first) - score(part_first)
+        gain_second = score(grown_second) - score(part_second)
+        log_norm = float(np.logaddexp(gain_first, gain_second))
+        if forced is not None:
+            joins_first = member in forced
+        else:
+            joins_first = rng.random() < math.exp(gain_first - log_norm)
+        if joins_first:
+            part_first = grown_first
+            log_q += gain_first - log_norm
+        else:
+            part_second = grown_second
+            log_q += gain_second - log_norm
+    return part_first, part_second, log_q

@@ -3,14 +3,21 @@
 Each step draws a move from a weighted list, asks it for a proposal T' and
 accepts with probability min(1, P(T'|Z) q(T'->T) / (P(T|Z) q(T->T'))), in log
 space. Only the sets a proposal changes are re-scored. With global terms
-(odometry) and ``delayed_acceptance=True`` a proposal is first screened with
-the cheap terms (prior + appearance) and only survivors pay for the global
-terms; the second stage accepts with min(1, exp(global(T') - global(T))),
-which keeps the target exact (Christen & Fox 2005).
+(odometry) and ``delayed_acceptance`` a proposal is first screened with the
+cheap terms (prior + appearance), plus a surrogate's prediction s_T(T') of the
+change of the global terms when one is given (``ptm.surrogate``), and only
+survivors pay for the global terms; the second stage corrects exactly
+(Christen & Fox 2005, :func:`second_stage_log_ratio`): with
+r = log of the first stage's ratio,
+
+    log alpha_2 = beta (global(T') - global(T) - s_T(T')) + min(r, beta (s_T(T') + s_T'(T))) - min(0, r),
+
+which is beta (global(T') - global(T)) without a surrogate.
 
 Several chains start from dispersed partitions (all distinct, all one place,
 random), run from seeds spawned from one root, and are pooled; split R-hat
-and effective sample sizes of log P and of the number of places are reported.
+and effective sample sizes of log P and of the number of places are reported,
+and the largest difference between two chains' co-assignment matrices.
 ``init`` may be a previous PTM over fewer detections: the chains then start
 from its most probable topologies, each new detection placed by a draw from
 its conditional under the cheap terms (incremental mapping, docs/model.md §3.7).
@@ -33,15 +40,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from .diagnostics import effective_sample_size, split_rhat
-from .moves import (GibbsReassign, SplitMerge, apply_proposal, initial_state, proposed_log_cheap,
-                    proposed_partition)
+from .moves import (GibbsReassign, GuidedSplitMerge, MapReassign, SplitMerge, apply_proposal, initial_state,
+                    proposed_log_cheap, proposed_partition)
 from ._validation import count
 from .partitions import Partition
 from .result import PTM
+from .surrogate import OdometrySurrogate
 
-__all__ = ["mcmc", "default_moves", "metropolis_step", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder"]
+__all__ = ["mcmc", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
+           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder"]
 
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
+#: Warm-up steps per detection of :func:`guided_options` (:func:`warm_up_start`).
+WARM_UP_PER_DETECTION = 100
 
 
 def default_moves():
@@ -49,8 +60,30 @@ def default_moves():
     return [(SplitMerge(), 0.5), (GibbsReassign(), 0.5)]
 
 
+def guided_moves(posterior, surrogate):
+    """Data-driven moves for many detections (docs/model.md §3.4): the guided split-merge (anchors by the pairs'
+    Bayes factors), reassignment by the current map's prediction (``surrogate``, an
+    :class:`ptm.surrogate.OdometrySurrogate` of ``posterior``, best shared with delayed acceptance), and
+    Gibbs reassignment."""
+    return [(GuidedSplitMerge(posterior), 0.4), (MapReassign(surrogate), 0.2), (GibbsReassign(), 0.4)]
+
+
+def guided_options(posterior, delayed_acceptance: bool = True) -> dict:
+    """Keyword arguments of :func:`mcmc` for many detections (docs/model.md §3.4): :func:`guided_moves`, the
+    odometry surrogate in delayed acceptance's first stage (with ``delayed_acceptance``), and a warm-up of
+    ``WARM_UP_PER_DETECTION`` x N steps per chain (:func:`warm_up_start`; :func:`ptm.tempered_mcmc` takes the
+    first two)::
+
+        ptm.mcmc(posterior, 5_000, burn_in=500, chains=4, **guided_options(posterior))
+    """
+    surrogate = OdometrySurrogate(posterior)
+    return {"moves": guided_moves(posterior, surrogate),
+            "delayed_acceptance": surrogate if delayed_acceptance else False,
+            "warm_up": WARM_UP_PER_DETECTION * posterior.n}
+
+
 def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, chains: int = 1,
-         init=None, moves=None, delayed_acceptance: bool = False) -> PTM:
+         init=None, moves=None, delayed_acceptance=False, warm_up: int = 0) -> PTM:
     """Sample the posterior over topologies; return the pooled histogram as a PTM.
 
     Parameters
@@ -69,20 +102,33 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
         detections) starts the chains from its top topologies, extended.
     moves : list of moves or of (move, weight) pairs
         Defaults to :func:`default_moves`.
-    delayed_acceptance : bool
-        Screen proposals with the cheap terms before evaluating global ones.
+    delayed_acceptance : bool or surrogate
+        Screen proposals with the cheap terms before evaluating global ones
+        (``True``), or with the cheap terms plus a surrogate's prediction of
+        the global terms' change (e.g. :class:`ptm.surrogate.OdometrySurrogate`).
+    warm_up : int
+        Steps on approximations of the posterior from each chain's start,
+        before burn-in (:func:`warm_up_start`; with a surrogate as
+        ``delayed_acceptance``, half of them on its approximate odometry term):
+        the chains then enter the full posterior near its bulk instead of from
+        the dispersed extremes.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
     thin = count("thin", thin, minimum=1)
     chains = count("chains", chains, minimum=1)
+    warm_up = count("warm_up", warm_up, minimum=0)
     mixture = MoveMixture(moves if moves is not None else default_moves())
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     recorder = SampleRecorder(chains, n_samples)
     started = time.perf_counter()
     for chain, chain_seed in enumerate(root.spawn(chains)):
         rng = np.random.default_rng(chain_seed)
-        state = initial_state(posterior, start_labels(posterior, init, chain, rng))
+        labels = start_labels(posterior, init, chain, rng)
+        if warm_up:
+            surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
+            labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
+        state = initial_state(posterior, labels)
         for step in range(burn_in + n_samples * thin):
             state, _ = mixture.step(posterior, state, rng, delayed_acceptance=delayed_acceptance)
             kept, remainder = divmod(step - burn_in + 1, thin)
@@ -93,7 +139,7 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     steps = chains * (burn_in + n_samples * thin)
     diagnostics = {"chains": chains, "steps": steps, "samples": chains * n_samples, "wall_s": wall,
                    "steps_per_s": steps / wall if wall > 0 else float("inf"), **mixture.diagnostics()}
-    diagnostics.update(posterior.diagnostics())
+    diagnostics.update(screening_diagnostics(posterior, delayed_acceptance))
     return recorder.result("mcmc", diagnostics)
 
 
@@ -111,8 +157,13 @@ _NOTHING_PROPOSED = StepInfo(False, False, False, False)
 
 
 def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.0,
-                    delayed_acceptance: bool = False):
-    """One MH step targeting P(T|Z)^inverse_temperature; returns (state, StepInfo)."""
+                    delayed_acceptance=False):
+    """One MH step targeting P(T|Z)^inverse_temperature; returns (state, StepInfo).
+
+    ``delayed_acceptance``: False, True (a first stage on the cheap terms), or
+    a surrogate whose ``predicted_change(partition, removed_sets, added_sets)``
+    joins the cheap terms in the first stage.
+    """
     proposal = move.propose(rng, state, posterior)
     if proposal is None:
         return state, _NOTHING_PROPOSED
@@ -121,22 +172,67 @@ def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.
     log_uniform = math.log(rng.random() or _SMALLEST)
     partition = None
     log_global = 0.0
-    if posterior.has_global_terms:
-        if delayed_acceptance:
-            if log_uniform >= log_ratio:
-                return state, StepInfo(True, False, True, False)
-            log_ratio = 0.0  # stage two: min(1, exp(beta * (global(T') - global(T))))
-            log_uniform = math.log(rng.random() or _SMALLEST)
+    if proposal.reverse_log_q is not None:  # informed by the current map: evaluated exactly, never screened
+        partition = proposed_partition(state, proposal)
+        if posterior.has_global_terms:
+            log_global = posterior.global_log_prob(partition)
+            log_ratio += inverse_temperature * (log_global - state.log_global)
+        if log_ratio > -math.inf:
+            log_ratio += proposal.reverse_log_q(partition)
+    elif posterior.has_global_terms and delayed_acceptance:
+        surrogate = None if delayed_acceptance is True else delayed_acceptance
+        removed = [state.blocks[index] for index in proposal.removed]
+        predicted = 0.0 if surrogate is None else surrogate.predicted_change(state.partition, removed,
+                                                                              proposal.added)
+        screening_ratio = log_ratio + inverse_temperature * predicted
+        if log_uniform >= screening_ratio:
+            return state, StepInfo(True, False, True, False)
+        log_uniform = math.log(rng.random() or _SMALLEST)
+        partition = proposed_partition(state, proposal)
+        log_global = posterior.global_log_prob(partition)
+        reverse_predicted = 0.0
+        if surrogate is not None and math.isfinite(log_global) and math.isfinite(state.log_global):
+            reverse_predicted = surrogate.predicted_change(partition, proposal.added, removed)
+        log_ratio = second_stage_log_ratio(inverse_temperature * (log_global - state.log_global),
+                                           inverse_temperature * predicted, inverse_temperature * reverse_predicted,
+                                           screening_ratio)
+    elif posterior.has_global_terms:
         partition = proposed_partition(state, proposal)
         log_global = posterior.global_log_prob(partition)
         log_ratio += inverse_temperature * (log_global - state.log_global)
-    evaluated = partition is not None
+    evaluated = partition is not None and posterior.has_global_terms
     if not log_uniform < log_ratio:
         return state, StepInfo(True, False, False, evaluated)
     if partition is None:
         partition = proposed_partition(state, proposal)
     return (apply_proposal(state, proposal, partition, added_scores, log_cheap, log_global),
             StepInfo(True, True, False, evaluated))
+
+
+def second_stage_log_ratio(global_change: float, predicted: float, reverse_predicted: float,
+                           screening_ratio: float) -> float:
+    """log of the second stage's ratio of delayed acceptance (Christen & Fox 2005), all terms tempered.
+
+    The first stage accepts T -> T' with a_1(T, T') = min(1, exp(r)), r = ``screening_ratio`` (the
+    cheap terms, the proposal ratio and the prediction s_T(T') = ``predicted``); the reverse move's
+    first stage, predicted from T', has r' = s_T'(T) + s_T(T') - r (``reverse_predicted`` = s_T'(T)).
+    The second stage accepts with
+
+        min(1, P(T') q(T'->T) a_1(T', T) / (P(T) q(T->T') a_1(T, T')))
+          = min(1, exp(global_change - predicted + min(r, predicted + reverse_predicted) - min(0, r))),
+
+    so that each transition's probability P(T) q a_1 a_2 is symmetric: detailed balance for the exact
+    target whatever the surrogate. Without one (both predictions 0) it is exp(global_change).
+    """
+    return global_change - predicted + (min(screening_ratio, predicted + reverse_predicted) - min(0.0, screening_ratio))
+
+
+def screening_diagnostics(posterior, delayed_acceptance) -> dict:
+    """The posterior's diagnostics, and the surrogate's under ``"surrogate"`` when delayed acceptance used one."""
+    diagnostics = posterior.diagnostics()
+    if hasattr(delayed_acceptance, "diagnostics"):
+        diagnostics["surrogate"] = delayed_acceptance.diagnostics()
+    return diagnostics
 
 
 class MoveMixture:
@@ -171,26 +267,30 @@ class MoveMixture:
 
 
 class SampleRecorder:
-    """Pools kept samples into a histogram (run-length counted) and per-chain traces."""
+    """Pools kept samples into a histogram (run-length counted, also per chain) and per-chain traces."""
 
     def __init__(self, chains: int, n_samples: int):
         self.counts: dict[Partition, int] = {}
+        self.chain_counts: list[dict[Partition, int]] = [{} for _ in range(chains)]
         self.log_prob = np.empty((chains, n_samples))
         self.num_places = np.empty((chains, n_samples), dtype=np.int32)
         self._current = None
+        self._chain = 0
         self._run_length = 0
 
     def keep(self, chain: int, index: int, state) -> None:
         self.log_prob[chain, index] = state.log_prob
         self.num_places[chain, index] = len(state.blocks)
-        if state.partition is not self._current:
+        if state.partition is not self._current or chain != self._chain:
             self.flush()
-            self._current = state.partition
+            self._current, self._chain = state.partition, chain
         self._run_length += 1
 
     def flush(self) -> None:
         if self._run_length:
             self.counts[self._current] = self.counts.get(self._current, 0) + self._run_length
+            per_chain = self.chain_counts[self._chain]
+            per_chain[self._current] = per_chain.get(self._current, 0) + self._run_length
         self._current, self._run_length = None, 0
 
     def result(self, method: str, diagnostics: dict) -> PTM:
@@ -200,11 +300,22 @@ class SampleRecorder:
             for name, trace in (("log_prob", self.log_prob), ("num_places", self.num_places)):
                 diagnostics[f"rhat_{name}"] = split_rhat(trace)
                 diagnostics[f"ess_{name}"] = effective_sample_size(trace)
+        if chains > 1:
+            diagnostics["coassignment_max_difference"] = self.coassignment_max_difference()
         diagnostics["n_distinct"] = len(self.counts)
         partitions = np.array([partition.labels for partition in self.counts], dtype=np.int32)
         frequencies = np.array(list(self.counts.values()), dtype=float)
         return PTM(partitions, frequencies, method, diagnostics,
                    traces={"log_prob": self.log_prob, "num_places": self.num_places})
+
+    def coassignment_max_difference(self) -> float:
+        """max over pairs of chains and detections (i, j) of |C_a(i, j) - C_b(i, j)|, C_c the co-assignment
+        matrix of chain c's own samples: 0 when the chains agree on which detections share a place."""
+        matrices = [PTM(np.array([partition.labels for partition in counts], dtype=np.int32),
+                        np.array(list(counts.values()), dtype=float), "chain").coassignment()
+                    for counts in self.chain_counts]
+        return float(max(np.abs(first - second).max()
+                         for index, first in enumerate(matrices) for second in matrices[index + 1:]))
 
 
 def start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:
@@ -237,6 +348,49 @@ def start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:
     if len(labels) != n:
         raise ValueError(f"init has {len(labels)} labels, the posterior has N={n}")
     return labels
+
+
+def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[int, ...]:
+    """The partition after ``steps`` Metropolis-Hastings steps from ``labels`` on approximations of the
+    posterior that evaluate no importance sampling: a start near the posterior's bulk, still dispersed across
+    chains, instead of an extreme (all distinct, all one place) where the odometry term is far from any
+    mode and its estimate rough (docs/model.md §3.4).
+
+    The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance;
+    guided split-merge and Gibbs reassignment, half and half); the last half, with an
+    :class:`ptm.surrogate.OdometrySurrogate`, adds its approximate odometry term (Laplace value and
+    expected penalty, :meth:`~ptm.surrogate.OdometrySurrogate.approximate_log_likelihood`), with the guided
+    moves and the surrogate screening delayed acceptance. Each approximate value costs a Laplace fit.
+    """
+    cheap_steps = steps if surrogate is None else steps - steps // 2
+    cheap = _WarmUpTarget(posterior)
+    mixture = MoveMixture([(GuidedSplitMerge(posterior), 0.5), (GibbsReassign(), 0.5)])
+    state = initial_state(cheap, labels)
+    for _ in range(cheap_steps):
+        state, _ = mixture.step(cheap, state, rng)
+    if surrogate is not None and steps > cheap_steps:
+        approximate = _WarmUpTarget(posterior, surrogate.approximate_log_likelihood)
+        mixture = MoveMixture(guided_moves(posterior, surrogate))
+        state = initial_state(approximate, state.partition.labels)
+        for _ in range(steps - cheap_steps):
+            state, _ = mixture.step(approximate, state, rng, delayed_acceptance=surrogate)
+    return state.partition.labels
+
+
+class _WarmUpTarget:
+    """A posterior seen with its global terms replaced (by nothing, or by an approximation): what the
+    moves and the step read of it."""
+
+    def __init__(self, posterior, global_log_prob=None):
+        self.n = posterior.n
+        self.block_score = posterior.block_score
+        self.log_prior_by_size = posterior.log_prior_by_size
+        self.partition = posterior.partition
+        self.has_global_terms = global_log_prob is not None
+        self._global_log_prob = global_log_prob
+
+    def global_log_prob(self, partition) -> float:
+        return 0.0 if self._global_log_prob is None else self._global_log_prob(partition)
 
 
 def _draw_placement(posterior, labels: list[int], detection: int, rng) -> int:
