@@ -42,7 +42,7 @@ from scipy.special import logsumexp
 from .partitions import Partition, bell
 from .result import PTM
 
-__all__ = ["BOUND_SLACK_NATS", "SKIP_NATS", "exact_posterior"]
+__all__ = ["BOUND_SLACK_NATS", "SKIP_NATS", "ExactBudgetExceeded", "exact_posterior"]
 
 #: Partitions whose total mass, even at the global terms' upper bound, is below e^-SKIP_NATS of the mass
 #: already evaluated are not evaluated.
@@ -51,10 +51,17 @@ SKIP_NATS = 40.0
 BOUND_SLACK_NATS = 1.0
 
 
-def exact_posterior(posterior, max_n: int = 12, skip: bool = True) -> PTM:
+class ExactBudgetExceeded(ValueError):
+    """The global terms would be evaluated on more partitions than ``max_global_evaluations`` allows."""
+
+
+def exact_posterior(posterior, max_n: int = 12, skip: bool = True, max_global_evaluations: int | None = None) -> PTM:
     """Enumerate and normalise the posterior over all partitions of N detections.
 
     ``skip=False`` evaluates the global terms on every partition even when a bound allows skipping.
+    ``max_global_evaluations``: a budget of global-term evaluations. After the first one the skip rule
+    gives how many partitions may still need them; more than the budget (or reaching it) raises
+    :class:`ExactBudgetExceeded` at once, so a caller can fall back to sampling without paying for it.
     """
     n = posterior.n
     if n > max_n:
@@ -120,7 +127,7 @@ def exact_posterior(posterior, max_n: int = 12, skip: bool = True) -> PTM:
 
     diagnostics = {"partitions": total}
     if posterior.has_global_terms:
-        evaluated, skipped_mass = _add_global_terms(posterior, partitions, log_probs, skip)
+        evaluated, skipped_mass = _add_global_terms(posterior, partitions, log_probs, skip, max_global_evaluations)
         partitions, log_probs = partitions[evaluated], log_probs[evaluated]
         diagnostics.update(global_evaluations=int(evaluated.size), skipped_mass_bound=skipped_mass)
     log_normaliser = float(logsumexp(log_probs))
@@ -132,7 +139,8 @@ def exact_posterior(posterior, max_n: int = 12, skip: bool = True) -> PTM:
     return PTM(partitions, probabilities, "exact", diagnostics)
 
 
-def _add_global_terms(posterior, partitions: np.ndarray, log_probs: np.ndarray, skip: bool) -> tuple[np.ndarray, float]:
+def _add_global_terms(posterior, partitions: np.ndarray, log_probs: np.ndarray, skip: bool,
+                      budget: int | None) -> tuple[np.ndarray, float]:
     """Add the global terms to ``log_probs`` in place, best cheap score first, skipping what the bound allows.
 
     Returns the indices of the evaluated partitions (in enumeration order) and the bound on the skipped
@@ -153,5 +161,11 @@ def _add_global_terms(posterior, partitions: np.ndarray, log_probs: np.ndarray, 
         log_probs[index] += value
         log_evaluated = np.logaddexp(log_evaluated, log_probs[index])
         count += 1
+        if budget is not None and (count == 1 or count >= budget):
+            # the evaluations the skip rule may still need: up to the first k whose rest falls below its threshold
+            needed = order.size if bound is None else int(np.argmax(rest + bound < log_evaluated - SKIP_NATS))
+            if needed > budget:
+                raise ExactBudgetExceeded(f"exact enumeration would evaluate the global terms on up to {needed:,} of "
+                                          f"{order.size:,} partitions; the budget is {budget:,}")
     skipped_mass = 0.0 if count == order.size else float(np.exp(rest[count] + bound - log_evaluated))
     return np.sort(order[:count]), skipped_mass

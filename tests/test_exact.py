@@ -163,3 +163,27 @@ def test_a_bound_found_false_turns_skipping_off_and_a_false_bound_never_met_show
     missed = ptm.exact_posterior(_square_posterior(dataset, lying))
     assert missed.diagnostics["global_evaluations"] < 203
     assert ptm.total_variation(missed, ptm.exact_posterior(_square_posterior(dataset, lying), skip=False)) > 0.99
+
+
+def test_a_budget_of_global_evaluations_refuses_at_once_what_the_skip_cannot_bring_under_it():
+    dataset = _square_loop_with_appearance(6)
+    within = ptm.exact_posterior(_square_posterior(dataset), max_global_evaluations=203)
+    assert within.diagnostics["global_evaluations"] <= 203
+    posterior = _square_posterior(dataset)
+    with pytest.raises(ptm.exact.ExactBudgetExceeded, match="budget is 5"):
+        ptm.exact_posterior(posterior, max_global_evaluations=5)
+    assert posterior.diagnostics()["odometry"]["evaluations"] == 1  # refused after the first evaluation
+    prior_only_odometry = ptm.Posterior(dataset, ptm.PoissonPrior(3.0), _square_posterior(dataset).global_terms)
+    with pytest.raises(ptm.exact.ExactBudgetExceeded):
+        ptm.exact_posterior(prior_only_odometry, max_global_evaluations=100)
+
+
+def test_the_harness_method_auto_samples_where_exact_enumeration_would_exceed_its_budget(monkeypatch):
+    from ptm_bench.evaluation import cell
+
+    dataset = _square_loop_with_appearance(6)
+    inference = {"exact_max_n": 10}
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), inference).method == "exact"
+    monkeypatch.setattr(cell, "AUTO_EXACT_GLOBAL_EVALUATIONS", 5)
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), inference) is None
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), {"exact_max_n": 5}) is None

@@ -62,6 +62,9 @@ CELL_VERSION = "ptm_bench.cell/3"  # a version label (it keeps its name when mod
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000
+#: Method "auto" enumerates up to ``exact_max_n`` detections unless the odometry term would be needed on more
+#: partitions than this (``ptm.exact_posterior``'s skip rule, known after one evaluation): then it samples.
+AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
 TOP_K = 5
 TRACE_POINTS = 200
 
@@ -139,16 +142,18 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     sampler_seed, _ = _inference_seeds(cell["seed"])
     moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
     method = inference["method"]
+    result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
-        method = "exact" if dataset.n <= inference["exact_max_n"] else "tempered"
-    if method == "exact":
+        result = _affordable_exact_posterior(posterior, inference)
+        method = "tempered" if result is None else "exact"
+    elif method == "exact":
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
-    elif method == "tempered":
+    if method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
                                    chains=inference["chains"], moves=moves,
                                    delayed_acceptance=inference["delayed_acceptance"])
-    else:
+    elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], moves=moves,
                           delayed_acceptance=inference["delayed_acceptance"])
@@ -161,6 +166,18 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     for name, trace in result.traces.items():
         row[f"trace_{name}"] = json.dumps(_thinned(trace).tolist())
     return row
+
+
+def _affordable_exact_posterior(posterior: ptm.Posterior, inference: dict) -> ptm.PTM | None:
+    """The exact posterior if N <= ``exact_max_n`` and the odometry term is needed on at most
+    ``AUTO_EXACT_GLOBAL_EVALUATIONS`` partitions, else None (method "auto" then samples)."""
+    if posterior.n > inference["exact_max_n"]:
+        return None
+    try:
+        return ptm.exact_posterior(posterior, max_n=inference["exact_max_n"],
+                                   max_global_evaluations=AUTO_EXACT_GLOBAL_EVALUATIONS)
+    except ptm.exact.ExactBudgetExceeded:  # the cheap terms leave too many partitions in play
+        return None
 
 
 def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
