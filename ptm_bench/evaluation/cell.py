@@ -53,7 +53,7 @@ from ptm_bench.evaluation.calibration import (
 )
 from ptm_bench.evaluation.datacache import dataset_for
 
-__all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior"]
+__all__ = ["CELL_VERSION", "INFERENCE_KEY", "run_cell", "build_posterior", "disagreement"]
 
 #: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
 #: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
@@ -65,6 +65,10 @@ INFERENCE_KEY = 7_000
 #: Method "auto" enumerates up to ``exact_max_n`` detections unless the odometry term would be needed on more
 #: partitions than this (``ptm.exact_posterior``'s skip rule, known after one evaluation): then it samples.
 AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
+#: Independent chains agree (no ``warning`` in the row) when the split R-hat of log P and of the number of
+#: places is at most AGREEMENT_RHAT and every two chains' co-assignment matrices differ by at most
+#: AGREEMENT_COASSIGNMENT (issue 11's targets).
+AGREEMENT_RHAT, AGREEMENT_COASSIGNMENT = 1.05, 0.05
 TOP_K = 5
 TRACE_POINTS = 200
 
@@ -140,7 +144,6 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     inference = cell["settings"]["inference"]
     posterior, used = build_posterior(cell, dataset)
     sampler_seed, _ = _inference_seeds(cell["seed"])
-    moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
     method = inference["method"]
     result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
@@ -149,17 +152,18 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     elif method == "exact":
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
     if method == "tempered":
+        options = _sampler_options(inference, posterior)
+        options.pop("warm_up", None)  # tempered ladders start from the dispersed partitions
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], moves=moves,
-                                   delayed_acceptance=inference["delayed_acceptance"])
+                                   chains=inference["chains"], **options)
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
-                          seed=sampler_seed, chains=inference["chains"], moves=moves,
-                          delayed_acceptance=inference["delayed_acceptance"])
+                          seed=sampler_seed, chains=inference["chains"], **_sampler_options(inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
+    row["warning"] = disagreement(result.diagnostics)
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
     row["top5"] = json.dumps([[list(labels), round(probability, 6)] for labels, probability in result.top(TOP_K)])
@@ -178,6 +182,37 @@ def _affordable_exact_posterior(posterior: ptm.Posterior, inference: dict) -> pt
                                    max_global_evaluations=AUTO_EXACT_GLOBAL_EVALUATIONS)
     except ptm.exact.ExactBudgetExceeded:  # the cheap terms leave too many partitions in play
         return None
+
+
+def _sampler_options(inference: dict, posterior: ptm.Posterior) -> dict:
+    """The moves and delayed acceptance of the cell's sampler (``inference.moves``), with the warm-up of
+    ``"guided"`` (docs/model.md §3.4)."""
+    if inference["moves"] == "guided":
+        return ptm.sampler.guided_options(posterior, inference["delayed_acceptance"])
+    moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
+    return {"moves": moves, "delayed_acceptance": inference["delayed_acceptance"]}
+
+
+def disagreement(diagnostics: dict) -> str:
+    """A warning when a sampler's independent chains disagree, saying what was reached, or "" when they agree.
+
+    They agree when the split R-hat of log P and of the number of places are at most ``AGREEMENT_RHAT`` and
+    every two chains' co-assignment matrices are within ``AGREEMENT_COASSIGNMENT`` of each other (max abs);
+    a result without several chains (the exact posterior, one chain) gives "".
+
+        >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4})
+        'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.40 (<= 0.05); the PTM is not converged: sample longer, or set inference.moves = "guided"'
+    """
+    reached = {name: diagnostics.get(name) for name in ("rhat_log_prob", "rhat_num_places", "coassignment_max_difference")}
+    if any(value is None for value in reached.values()):
+        return ""
+    if (reached["rhat_log_prob"] <= AGREEMENT_RHAT and reached["rhat_num_places"] <= AGREEMENT_RHAT
+            and reached["coassignment_max_difference"] <= AGREEMENT_COASSIGNMENT):
+        return ""
+    return (f"independent chains disagree: split R-hat of log P {reached['rhat_log_prob']:.3g} (want <= {AGREEMENT_RHAT}), "
+            f"of the number of places {reached['rhat_num_places']:.3g} (<= {AGREEMENT_RHAT}), largest co-assignment "
+            f"difference {reached['coassignment_max_difference']:.2f} (<= {AGREEMENT_COASSIGNMENT}); the PTM is not "
+            'converged: sample longer, or set inference.moves = "guided"')
 
 
 def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:

@@ -52,6 +52,7 @@ __all__ = ["DEFAULTS", "DEMO_CONFIG", "MODEL_NAMES", "BASELINE_NAMES", "Experime
 MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
+MOVE_SETS = ("default", "paper", "guided")
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 APPEARANCE_MODELS = ("joint", "independent")
 APPEARANCE_PRIOR_MEANS = ("global", "run")
@@ -79,7 +80,10 @@ DEFAULTS = {
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
         "exact_max_n": 10,
-        "moves": "default",  # "default" (split/merge + Gibbs) or "paper" (split/merge only)
+        # "default" (split/merge + Gibbs), "paper" (split/merge only), or "guided" (for many detections: data-driven
+        # moves, the odometry surrogate in delayed acceptance's first stage, a cheap warm-up per chain of "mcmc";
+        # docs/model.md §3.4)
+        "moves": "default",
         "temperatures": [1.0, 0.5, 0.25, 0.12, 0.06, 0.03],  # inverse temperatures of method "tempered"
     },
     "odometry": {
@@ -284,7 +288,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
         if section in _VALUE_CHECKS:
             _check_values(overrides, section, source, f"{where}: ")
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
-    _check_choice(merged["inference"]["moves"], ("default", "paper"), f"{where} inference.moves", source)
+    _check_choice(merged["inference"]["moves"], MOVE_SETS, f"{where} inference.moves", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
     _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
     _check_choice(merged["appearance"]["prior_mean"], APPEARANCE_PRIOR_MEANS, f"{where} appearance.prior_mean", source)

@@ -17,7 +17,9 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   changes are recomputed, the rest are not. Rows of a table written before
   definitions existed are reused unverified; the returned table counts both
   kinds in ``table.attrs``.
-* A cell that raises is recorded with its error and the sweep goes on.
+* A cell that raises is recorded with its error and the sweep goes on. A cell whose result carries a
+  non-empty ``"warning"`` (``run_cell`` writes one when independent chains disagree) is reported on
+  stderr as it finishes, and the number of such rows once the table is complete (``table.attrs["warned"]``).
 * Locally every cell runs in its own process (at most ``workers`` at a
   time), forked from a clean fork server rather than from this process (a
   fork of a process that has started MuJoCo's EGL renderer or a thread pool
@@ -67,6 +69,7 @@ import re
 import select
 import signal
 import socket
+import sys
 import threading
 import traceback
 from collections import deque
@@ -175,12 +178,27 @@ def _run_locked(cells, cell_fn, table_path: Path, *, workers, scheduler, max_att
         for cell, outcome in outcomes:
             rows[_cell_id(cell)] = _row(cell, outcome)
             _write_table(table_path, rows, order)
+            if outcome.get("warning"):
+                bar.write(f"warning: {_cell_id(cell)}: {outcome['warning']}", file=sys.stderr)
             bar.update(1)
     if not pending or fresh:
         _write_table(table_path, rows, order)
     table = read_table(table_path)
-    table.attrs.update(recomputed_changed=len(changed), reused_unverified=unverified)
+    warnings = _warnings(table)
+    if len(warnings):
+        print(f"{len(warnings)} of {len(table)} cells warn (column 'warning' of {table_path}), e.g. "
+              f"{warnings.iloc[0]}", file=sys.stderr)
+    table.attrs.update(recomputed_changed=len(changed), reused_unverified=unverified, warned=len(warnings))
     return table
+
+
+def _warnings(table: pd.DataFrame) -> pd.Series:
+    """The table's non-empty ``warning`` values (a cell function's message about its result, e.g. chains that
+    disagree)."""
+    if "warning" not in table.columns:
+        return pd.Series([], dtype=str)
+    values = table["warning"].fillna("").astype(str)
+    return values[values != ""]
 
 
 @contextlib.contextmanager
