@@ -120,14 +120,14 @@ def test_cells_whose_definition_changed_are_recomputed_and_only_those(tmp_path):
     cells[1] = {**cells[1], "definition": "v2"}  # as if its config had been edited
     table = sweep.run_sweep(cells, synthetic_cell, path, workers=2, progress=False)
     assert log.read_text().split() == [cells[1]["cell_id"]]
-    assert table.attrs == {"recomputed_changed": 1, "reused_unverified": 0}
+    assert table.attrs == {"recomputed_changed": 1, "reused_unverified": 0, "warned": 0}
     assert table.set_index("cell_id").loc[cells[1]["cell_id"], "definition"] == "v2"
     # a table from before definitions existed is reused as it is, and counted as unverified
     legacy = tmp_path / "legacy.csv"
     sweep.run_sweep(make_cells(seeds=range(2)), synthetic_cell, legacy, workers=2, progress=False)
     table = sweep.run_sweep(make_cells(seeds=range(2), definition="v1"), raising_cell, legacy, workers=2, progress=False)
     assert (table["status"] == "ok").all()
-    assert table.attrs == {"recomputed_changed": 0, "reused_unverified": 4}
+    assert table.attrs == {"recomputed_changed": 0, "reused_unverified": 4, "warned": 0}
 
 
 def test_a_killed_worker_is_retried_then_marked_failed_never_lost(tmp_path):

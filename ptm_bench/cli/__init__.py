@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from ptm_bench.cli.options import RESUME_HINT
@@ -45,6 +46,9 @@ def main(argv=None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    # A shell starts a background command of a script with SIGINT ignored, and Python then installs no handler:
+    # a later Ctrl-C or `kill -INT` would not stop a sweep. Ask for Python's own handler in any case.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return int(args.handler(args) or 0)
     except (ValueError, FileNotFoundError) as error:  # bad input; a programming error keeps its traceback
