@@ -274,12 +274,15 @@ class SampleRecorder:
         self.chain_counts: list[dict[Partition, int]] = [{} for _ in range(chains)]
         self.log_prob = np.empty((chains, n_samples))
         self.num_places = np.empty((chains, n_samples), dtype=np.int32)
+        # One recorded log P per partition (the first computed): chains update log P incrementally, so their
+        # values of one partition differ in the last digits, which rank-based R-hat would count as disagreement.
+        self._log_prob_of: dict[Partition, float] = {}
         self._current = None
         self._chain = 0
         self._run_length = 0
 
     def keep(self, chain: int, index: int, state) -> None:
-        self.log_prob[chain, index] = state.log_prob
+        self.log_prob[chain, index] = self._log_prob_of.setdefault(state.partition, state.log_prob)
         self.num_places[chain, index] = len(state.blocks)
         if state.partition is not self._current or chain != self._chain:
             self.flush()
