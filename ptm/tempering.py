@@ -29,14 +29,14 @@ import numpy as np
 
 from ._validation import count
 from .moves import initial_state
-from .sampler import MoveMixture, SampleRecorder, default_moves, start_labels
+from .sampler import MoveMixture, SampleRecorder, default_moves, screening_diagnostics, start_labels, warm_up_start
 
 __all__ = ["tempered_mcmc"]
 
 
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
-                  delayed_acceptance: bool = False, chains: int = 1):
+                  delayed_acceptance=False, chains: int = 1, warm_up: int = 0):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
@@ -44,12 +44,17 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     different topologies) are pooled, and the split R-hat and ESS of their
     beta = 1 traces are in the diagnostics, as for :func:`ptm.mcmc`; one
     ladder draws from ``seed`` itself, several from its children.
+    ``moves``, ``delayed_acceptance`` (``True`` or a surrogate) and ``warm_up``
+    (steps on approximations of the posterior from each replica's start) are
+    those of :func:`ptm.mcmc`, so ``**ptm.sampler.guided_options(posterior)``
+    applies to every replica.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
     thin = count("thin", thin, minimum=1)
     swap_interval = count("swap_interval", swap_interval, minimum=1)
     chains = count("chains", chains, minimum=1)
+    warm_up = count("warm_up", warm_up, minimum=0)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
@@ -67,8 +72,13 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
         replica_seeds = ladder_seed.spawn(betas.size + 1)
         swap_rng = np.random.default_rng(replica_seeds[-1])
         rngs = [np.random.default_rng(s) for s in replica_seeds[:-1]]
-        states = [initial_state(posterior, start_labels(posterior, init, chain + index, rng))
-                  for index, rng in enumerate(rngs)]
+        surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
+        states = []
+        for index, rng in enumerate(rngs):
+            labels = start_labels(posterior, init, chain + index, rng)
+            if warm_up:
+                labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
+            states.append(initial_state(posterior, labels))
         for step in range(total):
             for index, beta in enumerate(betas):
                 states[index], _ = mixtures[index].step(posterior, states[index], rngs[index], beta, delayed_acceptance)
@@ -94,5 +104,5 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
         "swap_acceptance": (swaps_accepted / np.maximum(swaps_proposed, 1)).tolist(),
         **mixtures[0].diagnostics(),
     }
-    diagnostics.update(posterior.diagnostics())
+    diagnostics.update(screening_diagnostics(posterior, delayed_acceptance))
     return recorder.result("tempered_mcmc", diagnostics)

@@ -14,7 +14,8 @@ the bound by a wide margin. Measured TV, correct / broken, at the seeds used:
   probability alone left out 0.035: an accurate surrogate makes the move
   nearly a Gibbs step, which needs no correction);
 * the same target, surrogate delayed acceptance with the default moves: 0.023;
-  with the guided moves and a warm-up: 0.029; second stage without the
+  with the guided moves and a warm-up: 0.029; two tempered ladders with the
+  guided moves, the surrogate and a warm-up: 0.016; second stage without the
   surrogate's correction 0.544 (> 3 x); second stage with the reverse
   prediction s_T'(T) left out 0.199 (> 2 x).
 
@@ -169,6 +170,14 @@ def test_guided_moves_with_surrogate_and_warm_up_match_the_exact_posterior():
     result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, delayed_acceptance=surrogate,
                       moves=guided_moves(posterior, surrogate), warm_up=200)
     assert ptm.total_variation(result, exact) < TOLERANCE
+
+
+def test_tempered_ladders_with_the_guided_options_match_the_exact_posterior():
+    posterior, exact = mixed_target(6)
+    result = ptm.tempered_mcmc(posterior, 8_000, temperatures=(1.0, 0.5), burn_in=500, seed=5, chains=2,
+                               **ptm.sampler.guided_options(posterior))
+    assert ptm.total_variation(result, exact) < TOLERANCE
+    assert result.diagnostics["surrogate"]["predictions"] > 0
 
 
 @pytest.mark.parametrize("broken, margin", [

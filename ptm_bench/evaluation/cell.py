@@ -152,11 +152,9 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     elif method == "exact":
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
     if method == "tempered":
-        options = _sampler_options(inference, posterior)
-        options.pop("warm_up", None)  # tempered ladders start from the dispersed partitions
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], **options)
+                                   chains=inference["chains"], **_sampler_options(inference, posterior))
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], **_sampler_options(inference, posterior))
