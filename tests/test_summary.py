@@ -176,3 +176,34 @@ def test_heat_map_labels_aliasing_with_the_measured_auc_where_known():
 def test_reliability_diagram_refuses_a_malformed_table(tmp_path):
     with pytest.raises(ValueError, match="must have shape \\(bins, 3\\)"):
         plots.reliability_diagram({"v": np.ones((10, 2))}, tmp_path / "r.png")
+
+
+def test_chains_agree_counts_sampled_cells_without_a_disagreement_warning():
+    group = pd.DataFrame({"diag_coassignment_max_difference": [0.01, 0.3, 0.02, np.nan],
+                          "warning": [np.nan, "independent chains disagree: ...", "", np.nan]})
+    assert summary._chains_agree(group) == pytest.approx(2 / 3)  # the exact (NaN) cell is not counted
+    assert math.isnan(summary._chains_agree(group.iloc[3:]))
+    assert math.isnan(summary._chains_agree(pd.DataFrame({"gt_mass": [0.5]})))  # a table from before the column
+
+
+def test_a_sweep_over_several_worlds_draws_accuracy_agreement_and_time_against_n(tmp_path, monkeypatch):
+    monkeypatch.setattr(summary, "dataset_for", _fake_dataset)
+    experiment = parse_experiment({**json.loads(json.dumps(CONFIG)), "sweep": {**CONFIG["sweep"], "aliasing": [0.0],
+                                   "worlds": ["short_loop", "office"]}}, source="test")
+    table = _table(experiment, tmp_path)
+    table["n_measurements"] = np.where(table["world"] == "office", 9, 5)
+    table["diag_coassignment_max_difference"] = np.where(table["method"] == "baseline", np.nan, 0.02)
+    text = summary.write_summary(experiment, table, tmp_path).read_text()
+    assert "(scaling.png)" in text and (tmp_path / "scaling.png").stat().st_size > 0
+    scores = summary.aggregate(table).set_index(["world", "variant"])
+    assert scores.loc[("office", "appearance"), "detections"] == 9
+    assert scores.loc[("office", "appearance"), "chains_agree"] == 1.0
+    assert math.isnan(scores.loc[("office", "greedy_odometry"), "chains_agree"])
+
+
+def test_one_world_draws_no_scaling_figure_and_an_empty_table_is_refused(tmp_path, experiment, monkeypatch):
+    monkeypatch.setattr(summary, "dataset_for", _fake_dataset)
+    summary.write_summary(experiment, _table(experiment, tmp_path), tmp_path)
+    assert not (tmp_path / "scaling.png").exists()
+    with pytest.raises(ValueError, match="no finished cells"):
+        plots.scaling(pd.DataFrame({"status": ["error"], "variant": ["v"]}), tmp_path / "s.png")

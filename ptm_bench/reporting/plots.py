@@ -17,6 +17,11 @@
   pooled reliability table (:func:`ptm_bench.evaluation.scoring.reliability_table`), the
   diagonal for reference, and the pairs per bin in a lower panel.
 * :func:`sampler_traces` — log P(T | Z) and the number of places along each chain.
+* :func:`scaling` — per variant, accuracy (ARI, loop-closure average
+  precision), agreement between independent chains (their largest
+  co-assignment difference) and wall time against the number of detections,
+  one point per cell and the mean per world (a sweep over worlds of several
+  sizes, e.g. ``experiments/scale.toml``).
 * :func:`pit_histograms` — per world and appearance model, the histogram of the
   probability integral transform of held-out revisits, one line per signature
   component (flat at 1 when the predictive is calibrated).
@@ -46,8 +51,8 @@ from ptm.dataset import atomic_write
 from ptm.se2 import compose, dead_reckoning
 
 
-__all__ = ["dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "top_topologies", "topology_string",
-           "trajectories"]
+__all__ = ["dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "scaling",
+           "top_topologies", "topology_string", "trajectories"]
 
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
 
@@ -276,6 +281,47 @@ def sampler_traces(traces: dict, path: Path, title: str = "") -> Path:
     axes_column[0, 0].legend(fontsize=7, loc="best")
     if title:
         axes_column[0, 0].set_title(title, fontsize=10)
+    return _save(figure, path)
+
+
+#: The panels of :func:`scaling`: (column, y label, log scale, reference line).
+SCALING_PANELS = (
+    ("ari", "ARI of the MAP", False, None),
+    ("lc_ap", "loop-closure average precision", False, None),
+    ("diag_coassignment_max_difference", "largest co-assignment difference\nbetween chains (agree: <= 0.05)", True, 0.05),
+    ("wall_s", "wall time per cell [s]", True, None),
+)
+
+
+def scaling(table, path: Path, title: str = "") -> Path:
+    """Accuracy, chain agreement and wall time against the number of detections (``n_measurements``).
+
+    One marker per finished cell, per variant; a line through each variant's means per world. A panel whose
+    column no row has (e.g. chain agreement of exact posteriors and baselines) is left empty.
+    """
+    ok = table[table["status"] == "ok"]
+    if not len(ok):
+        raise ValueError("scaling: no finished cells to draw")
+    figure = Figure(figsize=(11, 7.5))
+    panels = figure.subplots(2, 2, squeeze=False).ravel()
+    for axes, (column, label, logarithmic, reference) in zip(panels, SCALING_PANELS):
+        for colour, (variant, group) in enumerate(ok.groupby("variant", sort=False)):
+            values = group[column].astype(float) if column in group else None
+            if values is None or not values.notna().any():
+                continue
+            axes.plot(group["n_measurements"], values, "o", color=f"C{colour}", alpha=0.5, markersize=4)
+            means = group.assign(value=values).groupby("world")[["n_measurements", "value"]].mean().sort_values(
+                "n_measurements")
+            axes.plot(means["n_measurements"], means["value"], "-", color=f"C{colour}", label=variant)
+        if reference is not None:
+            axes.axhline(reference, color="black", linewidth=0.8, linestyle="--")
+        if logarithmic:
+            axes.set_yscale("log")
+        axes.set_xlabel("detections N")
+        axes.set_ylabel(label, fontsize=9)
+    panels[0].legend(fontsize=7, loc="best")
+    if title:
+        figure.suptitle(title, fontsize=10)
     return _save(figure, path)
 
 

@@ -22,7 +22,8 @@ errors, and draws the figures of :mod:`ptm_bench.reporting.plots`: those of the 
 scored seed (each top topology on its own optimised map, the Laplace mode of its pose
 graph, where the variant has an odometry model; the trajectory figure with the MAP
 topology's map beside the reference and dead reckoning), the ground-truth-mass heat
-map, and the reliability diagram.
+map, the reliability diagram, and, for a sweep over several worlds, accuracy, chain
+agreement and wall time against the number of detections.
 
     $ ptm-bench run experiments/exp3_nested.toml      # runs the cells, then writes the summary
     $ cat results/exp3_nested/summary.md
@@ -114,6 +115,8 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             "true_places": group["true_places"].mean(),
             # Chains that disagree (split R-hat of log P above 1.1) make the masses above unreliable.
             "rhat_over_1.1": _fraction_above(group, "diag_rhat_log_prob", 1.1),
+            "chains_agree": _chains_agree(group),
+            "detections": _mean(group, "n_measurements"),
             "wall_s": group["wall_s"].mean(),
             **_pooled_calibration(group),
         })
@@ -203,6 +206,17 @@ def _mean(group: pd.DataFrame, column: str) -> float:
     return float(values.mean()) if len(values) else math.nan
 
 
+def _chains_agree(group: pd.DataFrame) -> float:
+    """Fraction of the sampled cells (those with a co-assignment difference between chains) that carry no
+    disagreement ``warning`` (:func:`ptm_bench.evaluation.cell.disagreement`); NaN when none was sampled."""
+    column = "diag_coassignment_max_difference"
+    sampled = group[group[column].notna()] if column in group else group.iloc[:0]
+    if not len(sampled):
+        return math.nan
+    warnings = sampled["warning"] if "warning" in sampled else pd.Series("", index=sampled.index)
+    return float((warnings.fillna("").astype(str) == "").mean())
+
+
 def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
     """Fraction of the rows where ``column`` exceeds ``limit``, among those that have it; NaN if none do."""
     values = group[column].dropna() if column in group else pd.Series(dtype=float)
@@ -254,7 +268,9 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         "`gt_mass` is the posterior probability of the ground-truth topology, `gt_rank_median` its median rank "
         "(1 = most probable), `map_correct` the fraction of seeds whose MAP is the truth, `lc_*` loop-closure "
         "scores of the co-assignment matrix, `rhat_over_1.1` the fraction of seeds whose chains disagree "
-        "(split R-hat of log P > 1.1: the masses of those runs are not converged)"
+        "(split R-hat of log P > 1.1: the masses of those runs are not converged), `chains_agree` the fraction of "
+        "sampled seeds whose independent chains agree (split R-hat of log P and of the number of places <= 1.05, "
+        "co-assignments within 0.05; `–` for exact posteriors and baselines)"
         + (f", `{MEASURED_ALIASING}` the measured aliasing of the datasets (AUC of signature distance separating "
            "same-place from different-place pairs: 1 = appearance tells places apart, 0.5 = it cannot)"
            if MEASURED_ALIASING in _condition_columns(summary) else "") + ".",
@@ -265,8 +281,9 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
     if len(summary):
         columns = _condition_columns(summary) + [
-            "variant", "seeds", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari",
-            "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "wall_s"]
+            "variant", "seeds", "detections", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari",
+            "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "chains_agree",
+            "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
         lines += _calibration_section(table, summary)
     lines += _provenance_section(table)
@@ -405,6 +422,9 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         caption = "Ground-truth mass over aliasing x noise" + (
             " (aliasing labelled with the measured AUC of signature distance)" if _has_measured_aliasing(ok) else "")
         figures.append((caption, plots.mass_heatmap(ok, results_dir / "gt_mass_heatmap.png")))
+    if ok["world"].nunique() > 1:
+        caption = "Accuracy, agreement between independent chains and wall time against the number of detections"
+        figures.append((caption, plots.scaling(ok, results_dir / "scaling.png")))
     reliability = {variant: scoring.pooled_reliability(group["reliability"])
                    for variant, group in ok.groupby("variant", sort=False)
                    if "reliability" in group and group["reliability"].apply(lambda value: isinstance(value, str)).any()}
