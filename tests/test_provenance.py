@@ -227,3 +227,37 @@ def test_auto_method_is_exact_up_to_its_limit_and_tempered_beyond(tmp_path, exac
     row = run_cell(cells_with_cached_datasets(tmp_path, config)[0])
     assert row["inference_method"] == chosen  # the scored loop has N = 9 detections
     assert (row["n_topologies"] == 21147) == (chosen == "exact")
+
+
+def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead_reckoning(tmp_path):
+    config = copy.deepcopy(CONFIG)
+    config["odometry"]["tie_normaliser"] = True
+    cell = cells_with_cached_datasets(tmp_path, config)[0]
+    plain_cell = cells_with_cached_datasets(tmp_path / "plain")[0]
+    scored = datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"])
+    normalised, used = build_posterior(cell, scored)
+    plain, plain_used = build_posterior(plain_cell, scored)
+    expected = ptm.TieNormaliser.from_dead_reckoning(scored, 1.0, 0.5)  # sigma_T = 2 x radius 0.5; margin 0.5
+    assert used["tie_area"] == pytest.approx(expected.area)
+    assert used["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
+    assert "tie_area" not in plain_used
+    for labels in (scored.labels, np.zeros(scored.n, dtype=int), np.arange(scored.n)):
+        gain = expected.log_likelihood(plain.partition(labels))
+        assert normalised.log_prob(labels) - plain.log_prob(labels) == pytest.approx(gain, abs=1e-9)
+    assert expected.log_likelihood(plain.partition(scored.labels)) > 0  # merges gain: the lean to all-distinct is gone
+
+
+def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path):
+    def definitions(odometry):
+        config = {**CONFIG, "odometry": {**CONFIG["odometry"], **odometry}}
+        return [cell["definition"] for cell in experiment.expand_cells(experiment.parse_experiment(config), tmp_path)]
+
+    cell = experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(CONFIG)), tmp_path)[0]
+    before_the_key = {**cell, "settings": {**cell["settings"], "odometry": {
+        key: value for key, value in cell["settings"]["odometry"].items() if key != "tie_normaliser"}}}
+    before_the_key.pop("definition")
+    assert experiment._definition(before_the_key) == cell["definition"]   # rows computed before the key stay fresh
+    assert definitions({"tie_normaliser": False}) == definitions({})
+    assert definitions({"tie_normaliser": True})[0] != definitions({})[0]   # the inference cell changes
+    with pytest.raises(ValueError, match="tie_normaliser must be true or false"):
+        definitions({"tie_normaliser": 1})

@@ -128,6 +128,16 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
             sigma_topology=used["sigma_topology"], penalty_radius=used["penalty_radius"],
             max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
         ))
+        if odometry["tie_normaliser"]:
+            if "detection_radius" not in dataset.meta:
+                raise ValueError("odometry.tie_normaliser needs the detector's radius (dataset meta "
+                                 "'detection_radius') for the margin of the landmarks' area")
+            margin = float(dataset.meta["detection_radius"])
+            normaliser = ptm.TieNormaliser.from_dead_reckoning(dataset, used["sigma_topology"], margin)
+            used["tie_area"] = normaliser.area
+            used["source_tie_area"] = (f"this run's dead-reckoned detections: bounding box + {margin:g} m (detection "
+                                       "radius) on every side, no labels")
+            models.append(normaliser)
     if "appearance" in settings["models"]:
         appearance = settings["appearance"]
         model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"],

@@ -96,6 +96,10 @@ DEFAULTS = {
         "penalty_radius_factor": 0.75,
         "max_penalty": 100.0,
         "n_importance": 100,
+        # true: add the normaliser of the topology ties (ptm.TieNormaliser, docs/model.md §3.3): landmarks
+        # uniform on the area of the run's dead-reckoned detections (plus the detection radius on every side).
+        # Not the paper's model: its unnormalised ties make odometry lean to "every detection its own place".
+        "tie_normaliser": False,
     },
     "appearance": {
         # "independent": the paper's per-component model (the default: it passes the predictive check of
@@ -239,6 +243,13 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
     return cells
 
 
+#: Keys added to DEFAULTS after results existed, with the value that reproduces what the code did before
+#: them: at that value a key stays out of a cell's definition, so adding an option does not make every
+#: existing row stale (a cell that sets another value is a new cell).
+_ADDED_KEYS = {("odometry", "tie_normaliser"): False}
+_UNSET = object()
+
+
 def _definition(cell: dict) -> str:
     """A digest of everything that decides a cell's row.
 
@@ -247,13 +258,16 @@ def _definition(cell: dict) -> str:
     (:func:`ptm_bench.evaluation.datacache.world_identity`: edit a world file or bump
     ``GENERATOR_VERSION`` and the cell is recomputed on the next run), and
     :data:`ptm_bench.evaluation.cell.CELL_VERSION`, the version of the rules that turn a
-    dataset into a row.
+    dataset into a row. A key of :data:`_ADDED_KEYS` at its old-behaviour value is left out.
     """
     # Imported here: both pull in the simulator or the inference package, which parsing configs does not need.
     from ptm_bench.evaluation.cell import CELL_VERSION
     from ptm_bench.evaluation.datacache import world_identity
 
-    decisive = {**cell,
+    settings = {section: ({key: value for key, value in values.items()
+                           if _ADDED_KEYS.get((section, key), _UNSET) != value} if isinstance(values, dict) else values)
+                for section, values in cell["settings"].items()}
+    decisive = {**cell, "settings": settings,
                 "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
                 "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": CELL_VERSION}
     return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -426,6 +440,7 @@ _VALUE_CHECKS = {
                        "penalty_radius_factor")},
         "max_penalty": (lambda v: _is_number(v) and v >= 0, "a non-negative number"),
         "n_importance": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "tie_normaliser": (lambda v: isinstance(v, bool), "true or false"),
     },
     "appearance": {
         "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
