@@ -22,6 +22,7 @@ from .appearance_joint import JointAppearanceModel
 from .dataset import Dataset
 from .exact import exact_posterior
 from .odometry import OdometryModel
+from .online import OnlineMapper
 from .partitions import Partition, bell, canonical, stirling2
 from .posterior import Posterior
 from .prior import PoissonPrior
@@ -35,6 +36,6 @@ __all__ = [
     "bell", "canonical", "exact_posterior", "export", "features", "inverse_gamma_from_mean_variance",
     "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
     "predictive_pit",
-    "mcmc", "moves", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel", "TieNormaliser",
+    "mcmc", "moves", "OnlineMapper", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel", "TieNormaliser",
 ]
 __version__ = "0.1.0"
