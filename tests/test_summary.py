@@ -207,3 +207,12 @@ def test_one_world_draws_no_scaling_figure_and_an_empty_table_is_refused(tmp_pat
     assert not (tmp_path / "scaling.png").exists()
     with pytest.raises(ValueError, match="no finished cells"):
         plots.scaling(pd.DataFrame({"status": ["error"], "variant": ["v"]}), tmp_path / "s.png")
+
+
+def test_figures_of_variants_no_longer_drawn_are_removed_and_others_kept(tmp_path, experiment, monkeypatch):
+    monkeypatch.setattr(summary, "dataset_for", _fake_dataset)
+    removed, unrelated = tmp_path / "top5_a_removed_variant.png", tmp_path / "notes.png"
+    removed.write_bytes(b"old"), unrelated.write_bytes(b"mine")
+    summary.write_summary(experiment, _table(experiment, tmp_path), tmp_path)
+    assert not removed.exists() and unrelated.read_bytes() == b"mine"
+    assert (tmp_path / "top5_appearance.png").is_file() and (tmp_path / "trajectory.png").is_file()

@@ -291,12 +291,27 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         lines += ["## Failed cells", "", markdown_table(failed[["cell_id", "error"]]), ""]
     if figures and len(summary):
         lines += ["## Figures", ""]
-        for caption, path in _draw_figures(experiment, table, results_dir):
+        drawn = _draw_figures(experiment, table, results_dir)
+        for caption, path in drawn:
             lines += [f"![{caption}]({path.relative_to(results_dir).as_posix()})", f"*{caption}*", ""]
+        _remove_undrawn_figures(results_dir, {path for _, path in drawn})
     path = results_dir / "summary.md"
     text = "\n".join(lines)
     atomic_write(path, lambda handle: handle.write(text.encode()))
     return path
+
+
+#: The files :func:`_draw_figures` may write; those of a variant, world or axis no longer drawn are removed.
+FIGURE_PATTERNS = ("trajectory.png", "top5_*.png", "traces_*.png", "gt_mass_heatmap.png", "reliability.png",
+                   "scaling.png")
+
+
+def _remove_undrawn_figures(results_dir: Path, drawn: set) -> None:
+    """Delete the summary's figures that this summary did not draw (e.g. of a variant since removed from the config)."""
+    for pattern in FIGURE_PATTERNS:
+        for path in results_dir.glob(pattern):
+            if path not in drawn:
+                path.unlink()
 
 
 def _left_out_note(left_out: dict) -> list[str]:
