@@ -6,8 +6,8 @@ Sections (run all by default, or pick with ``--section``):
   posteriors at N = 10, 50, 100 (K = 5), for the paper's split/merge move
   alone and for the default move mix, and the wall time of exact
   enumeration at N = 10 (Bell(10) = 115 975 partitions).
-* further sections registered in ``SECTIONS`` by the odometry model and the
-  simulator.
+* further sections registered in ``SECTIONS`` by the odometry model, the
+  simulator, the evaluation harness and the online mapper (``scale``).
 
 Rows: ``section, metric, n, value, unit``. Timings are single-process; compare
 ratios within one run, not absolute times across machines.
@@ -32,6 +32,7 @@ SECTIONS = {
     "simulator": "ptm_bench.benchmarks.simulator:simulator_rows",
     "odometry": "ptm_bench.benchmarks.odometry:odometry_rows",
     "evaluation": "ptm_bench.benchmarks.evaluation:evaluation_rows",
+    "scale": "ptm_bench.benchmarks.scale:scale_rows",
 }
 
 
@@ -97,6 +98,10 @@ Sections (all by default; pick with --section, repeatable):
               hit rate, weights' ESS and steps per second with and without
               delayed acceptance at N = 50
   evaluation  the sweep's overhead per cell, scoring time, one demo cell end to end
+  scale       the online mapper's latency per detection (median, 90th percentile,
+              largest, median of the last quarter) replaying a generated 10 x 10
+              corridor grid (about 100 detections), odometry + appearance, and
+              its final MAP's ARI
 
 Timings are single-process; compare ratios within one run, not absolute times
 across machines. Each section's workload and settings are fixed in its module,
