@@ -91,7 +91,7 @@ class OnlineMapper:
     :meth:`result` the particles' PTM.
     """
 
-    def __init__(self, prior, models, particles: int = 256, rejuvenation_steps: int = 4,
+    def __init__(self, prior, models, particles: int = 128, rejuvenation_steps: int = 2,
                  resample_below: float = 0.5, screen: float = 1e-3, seed=None):
         if hasattr(prior, "log_prob"):
             self._prior_of = lambda n: prior
