@@ -1,7 +1,7 @@
 """The ``scale`` section of ``ptm-bench speed``: the online mapper's latency per detection (docs/model.md §3.8).
 
 One run of a generated corridor grid (10 x 10 nodes, 4 extra loops, 60 % of the nodes places, world and
-run seed 0; about 100 detections) at aliasing 0 and odometry noise 1, replayed detection by detection
+run seed 0: 116 detections) at aliasing 0 and odometry noise 1, replayed detection by detection
 through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The parameters are
 calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out run of a
 5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an

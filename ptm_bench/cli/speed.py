@@ -100,7 +100,7 @@ Sections (all by default; pick with --section, repeatable):
   evaluation  the sweep's overhead per cell, scoring time, one demo cell end to end
   scale       the online mapper's latency per detection (median, 90th percentile,
               largest, median of the last quarter) replaying a generated 10 x 10
-              corridor grid (about 100 detections), odometry + appearance, and
+              corridor grid (116 detections), odometry + appearance, and
               its final MAP's ARI
 
 Timings are single-process; compare ratios within one run, not absolute times
