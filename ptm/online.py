@@ -32,9 +32,9 @@ detection n + 1 arrives (0-based index n):
 The prior follows n in one of two ways. A prior object (``log_prob(n, m)``) is used at every n: with a
 :class:`ptm.PoissonPrior` the rate counts the world's landmarks, visited or not, a number that does not
 grow with the run, and the urn model is consistent (the prior of n detections is the marginal of that of
-n + 1). A callable ``n -> prior`` gives each n its own, e.g. the harness's calibration
-``lambda n: PoissonPrior.with_expected_places(n, 0.6 * n)``; the targets then change non-consistently,
-which the weights account for. Each update binds the models to the first n + 1 detections
+n + 1). A callable ``n -> prior`` gives each n its own, e.g. the harness's calibrated rate, which
+expects a share of n places (:meth:`ptm.PoissonPrior.with_expected_places`); the targets then change
+non-consistently, which the weights account for. Each update binds the models to the first n + 1 detections
 (``model.bind``), as :func:`ptm.mcmc` with ``init`` does (docs/model.md §3.7).
 
     >>> import numpy as np
