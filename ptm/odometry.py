@@ -79,7 +79,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.spatial.distance
-from scipy.special import logsumexp
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
@@ -440,7 +439,7 @@ class OdometryTerm:
             self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
         ])
         # stratified (deterministic allocation) balance-heuristic estimator: the mean of all weights
-        estimate = float(logsumexp(log_weights)) - math.log(len(log_weights))
+        estimate = float(_logsumexp(log_weights)) - math.log(len(log_weights))
         weights = np.exp(log_weights - float(log_weights.max()))  # scaled weights, for the ESS and the error
         mean = float(weights.mean())
         ess = float(weights.sum() ** 2 / np.sum(weights**2))
@@ -489,7 +488,7 @@ class OdometryTerm:
                             _lower_solve(relative_factor, moved - mean[:, None]))
             exponents[c] = (mixture.log_alphas[c] - 0.5 * np.einsum("ms,ms->s", standardised, standardised)
                             - log_det + 0.5 * np.einsum("ms,ms->s", moved, moved))
-        log_ratio = logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
+        log_ratio = _logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
         states = fit.x + offsets.T
         return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
                 - self.penalties(states, offsets, fit.x, labels, centre_distance))
@@ -512,7 +511,7 @@ class OdometryTerm:
         first, second = self._pair_first[near], self._pair_second[near]
         detections = np.unique(np.concatenate([first, second]))
         detections = detections[detections > 0]  # pose 0 is fixed at the origin
-        row = np.full(self.n, -1)  # pose 0 -> the origin row of _pair_penalty
+        row = np.full(self.n, -1)  # pose 0 -> the origin row of _PairPenalty
         row[detections] = np.arange(len(detections))
         pairs = (row[first], row[second])
         selector = _position_selector(detections, self.dimension)  # B^T, (d, 2m)
@@ -520,21 +519,21 @@ class OdometryTerm:
         covariance = selector.T @ regression  # S = B H^-1 B^T
         factor = np.linalg.cholesky(0.5 * (covariance + covariance.T))  # L
         centre = selector.T @ fit.x  # t*: the positions of the penalised detections at P*
-        target = _penalty_mode(centre, (factor, True), pairs, self.model.penalty_radius, self.model.max_penalty)
+        penalty = _PairPenalty(pairs, len(detections), self.model.penalty_radius, self.model.max_penalty)
+        target = _penalty_mode(centre, factor, penalty)
         # everything below lives in coordinates u = L^-1 (t - t*), where q_0 is N(0, I)
-        mean = scipy.linalg.solve_triangular(factor, target - centre, lower=True)
+        mean = _solve_triangular(factor, target - centre, lower=True)
         shift = float(np.linalg.norm(mean))  # |P-dagger - P*| in the metric of H
         if shift < 1e-9:  # the penalty does not move the mode
             return None
         for tangential in (True, False):  # the exact Hessian of Pen, else its positive semi-definite part
-            _, _, hessian = _pair_penalty(target.reshape(-1, 2), pairs, self.model.penalty_radius,
-                                          self.model.max_penalty, derivatives=True, tangential=tangential)
+            _, _, hessian = penalty.derivatives(target.reshape(-1, 2), tangential=tangential)
             try:
                 precision_factor = np.linalg.cholesky(np.eye(len(mean)) + factor.T @ hessian @ factor)
                 break
             except np.linalg.LinAlgError:
                 continue
-        inverse = scipy.linalg.solve_triangular(precision_factor, np.eye(len(mean)), lower=True)
+        inverse = _solve_triangular(precision_factor, np.eye(len(mean)), lower=True)
         means = [np.zeros(len(mean)), mean]
         factors = [np.eye(len(mean)), np.linalg.cholesky(inverse.T @ inverse)]  # F F^T = precision^-1
         total = self.model.n_importance
@@ -543,7 +542,7 @@ class OdometryTerm:
         component_of = np.repeat(np.arange(len(means)), counts)
         return PenaltyMixture(
             selector=selector,
-            regression=scipy.linalg.solve_triangular(factor, regression.T, lower=True, trans=0).T,
+            regression=_solve_triangular(factor, regression.T, lower=True).T,
             factor=factor,
             means=means,
             relative_factors=factors,
@@ -615,39 +614,61 @@ def _position_selector(detections, dimension: int) -> np.ndarray:
     return matrix
 
 
-def _pair_penalty(positions, pairs, penalty_radius: float, max_penalty: float, derivatives: bool = False,
-                  tangential: bool = False):
-    """Pen of the positions t (m, 2) over ``pairs`` of rows (-1: pose 0 at the origin); with
-    ``derivatives`` also its gradient (m, 2) and its Hessian (2m, 2m) without the tangential part
-    f'(d)/d (I - u u^T) of each pair, which is negative (as Gauss-Newton leaves out residual
-    curvature): what is kept, f''(d) u u^T per pair, is positive semi-definite."""
-    first, second = pairs
-    padded = np.vstack([positions, np.zeros((1, 2))])  # row -1: the origin
-    separation = padded[first] - padded[second]
-    distances = np.hypot(separation[:, 0], separation[:, 1])
-    closeness = np.clip(1.0 - distances / penalty_radius, 0.0, None)
-    value = max_penalty * float(np.sum(closeness**3))
-    if not derivatives:
-        return value
-    units = separation / np.where(distances > 0.0, distances, np.inf)[:, None]
-    slope = -3.0 * max_penalty / penalty_radius * closeness**2  # f'(d)
-    curvature = 6.0 * max_penalty / penalty_radius**2 * closeness  # f''(d) >= 0
-    gradient = np.zeros_like(padded)
-    np.add.at(gradient, first, slope[:, None] * units)
-    np.add.at(gradient, second, -slope[:, None] * units)
-    blocks = curvature[:, None, None] * units[:, :, None] * units[:, None, :]
-    if tangential:
-        bend = slope / np.where(distances > 0.0, distances, np.inf)
-        blocks += bend[:, None, None] * (np.eye(2) - units[:, :, None] * units[:, None, :])
-    hessian = np.zeros((len(padded), 2, len(padded), 2))
-    for a, b, sign in ((first, first, 1.0), (second, second, 1.0), (first, second, -1.0), (second, first, -1.0)):
-        np.add.at(hessian, (a, slice(None), b), sign * blocks)
-    size = 2 * len(positions)
-    return value, gradient[:-1].ravel(), hessian.reshape(len(padded) * 2, -1)[:size, :size]
+class _PairPenalty:
+    """Pen(t) = sum over ``pairs`` (i, j) of rows of the positions t (m, 2) of f(|t_i - t_j|) (row -1: pose 0
+    at the origin), and its derivatives; the pairs' index arithmetic is done once, for the many evaluations
+    of one penalty mode."""
+
+    def __init__(self, pairs, rows: int, penalty_radius: float, max_penalty: float):
+        self.first, self.second = pairs
+        self.rows = rows
+        self.penalty_radius, self.max_penalty = penalty_radius, max_penalty
+        padded_rows = rows + 1  # the origin appended
+        first, second = self.first % padded_rows, self.second % padded_rows
+        # entries summed in the order of np.add.at over the first then the second rows (so bit for bit
+        # its sums): the gradient's (row, axis), the Hessian's (row, axis, row, axis) of each pair's block
+        self._gradient_entries = (2 * np.concatenate([first, second])[:, None] + np.arange(2)).ravel()
+        block_rows, block_cols = (np.concatenate([first, second, first, second]),
+                                  np.concatenate([first, second, second, first]))
+        axis_rows, axis_cols = np.divmod(np.arange(4), 2)
+        self._hessian_entries = (((2 * block_rows[:, None] + axis_rows) * padded_rows + block_cols[:, None]) * 2
+                                 + axis_cols).ravel()
+
+    def _separations(self, positions):
+        padded = np.concatenate([positions, np.zeros((1, 2))])  # row -1: the origin
+        separation = padded[self.first] - padded[self.second]
+        distances = np.hypot(separation[:, 0], separation[:, 1])
+        closeness = np.clip(1.0 - distances / self.penalty_radius, 0.0, None)
+        return separation, distances, closeness
+
+    def __call__(self, positions) -> float:
+        """Pen of the positions t (m, 2)."""
+        return self.max_penalty * float(np.sum(self._separations(positions)[2] ** 3))
+
+    def derivatives(self, positions, tangential: bool = False):
+        """Pen, its gradient (2m,) and its Hessian (2m, 2m) without the tangential part f'(d)/d (I - u u^T)
+        of each pair, which is negative (as Gauss-Newton leaves out residual curvature): what is kept,
+        f''(d) u u^T per pair, is positive semi-definite; with ``tangential`` the exact Hessian."""
+        separation, distances, closeness = self._separations(positions)
+        value = self.max_penalty * float(np.sum(closeness**3))
+        units = separation / np.where(distances > 0.0, distances, np.inf)[:, None]
+        slope = -3.0 * self.max_penalty / self.penalty_radius * closeness**2  # f'(d)
+        curvature = 6.0 * self.max_penalty / self.penalty_radius**2 * closeness  # f''(d) >= 0
+        pulls = slope[:, None] * units
+        padded_size = 2 * (self.rows + 1)
+        gradient = np.bincount(self._gradient_entries, weights=np.concatenate([pulls, -pulls]).ravel(),
+                               minlength=padded_size)
+        blocks = curvature[:, None, None] * units[:, :, None] * units[:, None, :]
+        if tangential:
+            bend = slope / np.where(distances > 0.0, distances, np.inf)
+            blocks += bend[:, None, None] * (np.eye(2) - units[:, :, None] * units[:, None, :])
+        hessian = np.bincount(self._hessian_entries, weights=np.concatenate([blocks, blocks, -blocks, -blocks]).ravel(),
+                              minlength=padded_size**2).reshape(padded_size, padded_size)
+        size = 2 * self.rows
+        return value, gradient[:size], hessian[:size, :size]
 
 
-def _penalty_mode(centre, covariance_factor, pairs, penalty_radius: float, max_penalty: float,
-                  max_iterations: int = 100) -> np.ndarray:
+def _penalty_mode(centre, covariance_lower, penalty: _PairPenalty, max_iterations: int = 100) -> np.ndarray:
     """argmin_t 1/2 (t - t*)^T S^-1 (t - t*) + Pen(t) over the positions t (2m,) of the penalised
     detections, from t = t*, by Newton steps (on Pen's positive semi-definite Hessian part where
     the exact one makes the system indefinite) with backtracking.
@@ -655,24 +676,21 @@ def _penalty_mode(centre, covariance_factor, pairs, penalty_radius: float, max_p
     Converged to rounding (the mode has to be a smooth function of P*: a sampler's value of a
     partition must not depend on where its fit was warm-started).
     """
-    precision = scipy.linalg.cho_solve(covariance_factor, np.eye(len(centre)))
+    precision, _ = scipy.linalg.lapack.dpotrs(covariance_lower, np.eye(len(centre)), lower=1)  # S^-1, as cho_solve
     point = centre.copy()
 
     def objective(t):
         offset = t - centre
-        return 0.5 * float(offset @ precision @ offset) + _pair_penalty(t.reshape(-1, 2), pairs, penalty_radius,
-                                                                      max_penalty)
+        return 0.5 * float(offset @ precision @ offset) + penalty(t.reshape(-1, 2))
 
     value = objective(point)
     for _ in range(max_iterations):
-        _, penalty_gradient, penalty_hessian = _pair_penalty(point.reshape(-1, 2), pairs, penalty_radius,
-                                                             max_penalty, derivatives=True, tangential=True)
+        _, penalty_gradient, penalty_hessian = penalty.derivatives(point.reshape(-1, 2), tangential=True)
         gradient = precision @ (point - centre) + penalty_gradient
         try:
             step = -_positive_definite_solve(precision + penalty_hessian, gradient)
         except np.linalg.LinAlgError:
-            _, _, penalty_hessian = _pair_penalty(point.reshape(-1, 2), pairs, penalty_radius, max_penalty,
-                                                  derivatives=True)
+            _, _, penalty_hessian = penalty.derivatives(point.reshape(-1, 2))
             step = -_positive_definite_solve(precision + penalty_hessian, gradient)
         slope = float(gradient @ step)
         if slope > -1e-14 * (1.0 + abs(value)):
@@ -703,9 +721,37 @@ def _lower_solve(lower, rhs) -> np.ndarray:
 def _positive_definite_solve(matrix, rhs) -> np.ndarray:
     """matrix^-1 rhs by Cholesky; ``numpy.linalg.LinAlgError`` when matrix is not positive definite."""
     lower = np.linalg.cholesky(matrix)
-    return scipy.linalg.solve_triangular(lower.T, scipy.linalg.solve_triangular(lower, rhs, lower=True,
-                                                                                check_finite=False),
-                                         lower=False, check_finite=False)
+    return _solve_triangular(lower.T, _solve_triangular(lower, rhs, lower=True), lower=False)
+
+
+def _solve_triangular(matrix, rhs, lower: bool) -> np.ndarray:
+    """``scipy.linalg.solve_triangular(matrix, rhs, lower=lower)``, calling LAPACK as it does (a C-ordered
+    matrix transposed, so in Fortran order, and solved transposed) without its checks, which cost
+    15-130 us a call here."""
+    if matrix.flags.f_contiguous:
+        solution, info = scipy.linalg.lapack.dtrtrs(matrix, rhs, lower=lower, trans=0)
+    else:
+        solution, info = scipy.linalg.lapack.dtrtrs(matrix.T, rhs, lower=not lower, trans=1)
+    if info != 0:
+        raise ValueError(f"triangular solve failed (LAPACK info {info})")
+    return solution
+
+
+def _logsumexp(values, axis=None):
+    """``scipy.special.logsumexp(values, axis)`` of real values, by the same operations without its array-API
+    dispatch (which costs ~90 us a call): the largest terms are summed separately,
+    log1p(sum_others exp(a - a_max) / m) + log m + a_max, and log sum exp(a) where that is not finite."""
+    axis = tuple(range(np.ndim(values))) if axis is None else axis
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        fallback = np.log(np.sum(np.exp(values), axis=axis, keepdims=True))
+        largest = np.max(values, axis=axis, keepdims=True)
+        is_largest = values == largest
+        count = np.sum(is_largest.astype(values.dtype), axis=axis, keepdims=True, dtype=values.dtype)
+        rest = np.sum(np.exp(np.where(is_largest, -np.inf, values) - largest), axis=axis, keepdims=True)
+        rest = np.where(rest == 0, rest, rest / count)
+        value = np.log1p(rest) + np.log(count) + largest
+    value = np.squeeze(np.where(np.isfinite(value), value, fallback), axis=axis)
+    return value[()] if value.ndim == 0 else value
 
 
 def _canonical_labels(partition) -> tuple[int, ...]:

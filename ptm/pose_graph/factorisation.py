@@ -52,6 +52,12 @@ class HessianLayout:
         self.dimension = 3 * self.poses
         self._block_rows, self._block_cols = tridiagonal_block_indices(self.poses)
         self._band_rows, self._band_cols, self._band_sources = band_indices(self.poses)
+        #: The x and y coordinates of the poses, and where the block entries between two of them go in
+        #: :meth:`position_matrix` (the rows and columns among the positions, the index into the values).
+        self.positions = np.flatnonzero(np.arange(self.dimension) % 3 != 2)
+        between_positions = np.flatnonzero((self._block_rows % 3 != 2) & (self._block_cols % 3 != 2))
+        self._position_entries = (_position_index(self._block_rows[between_positions]),
+                                  _position_index(self._block_cols[between_positions]), between_positions)
 
     def factorise(self, topology: TopologyHessian, blocks, added_diagonal=None, sparse: bool = False):
         """Factorise the topology Hessian + the block-tridiagonal blocks (+ a diagonal): a
@@ -70,16 +76,30 @@ class HessianLayout:
 
     def matrix(self, topology: TopologyHessian, blocks, added_diagonal=None):
         """The assembled sparse (CSC) matrix: topology Hessian + blocks (+ a diagonal)."""
-        poses = self.poses
-        diagonal, above = blocks[:poses], blocks[poses:]
         topology_rows, topology_cols, topology_values = topology.entries
-        values = np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel(), topology_values])
+        values = np.concatenate([self._block_values(blocks), topology_values])
         rows = np.concatenate([self._block_rows, topology_rows])
         cols = np.concatenate([self._block_cols, topology_cols])
         matrix = scipy.sparse.csc_matrix((values, (rows, cols)), shape=(self.dimension, self.dimension))
         if added_diagonal is not None:
             matrix = matrix + scipy.sparse.diags(added_diagonal, format="csc")
         return matrix
+
+    def position_matrix(self, topology: TopologyHessian, blocks):
+        """``matrix(topology, blocks)[positions][:, positions]``, the rows and columns of the x and y
+        coordinates, assembled directly (the same CSC arrays: every entry is a sum of at most two terms,
+        a block's and the topology's, so the order of summation does not matter)."""
+        rows, cols, sources = self._position_entries
+        topology_rows, topology_cols, topology_values = topology.entries
+        values = np.concatenate([self._block_values(blocks)[sources], topology_values])
+        rows = np.concatenate([rows, _position_index(topology_rows)])
+        cols = np.concatenate([cols, _position_index(topology_cols)])
+        return scipy.sparse.csc_matrix((values, (rows, cols)), shape=(len(self.positions),) * 2)
+
+    def _block_values(self, blocks) -> np.ndarray:
+        """The entries of the blocks in the order of ``tridiagonal_block_indices``."""
+        diagonal, above = blocks[:self.poses], blocks[self.poses:]
+        return np.concatenate([diagonal.ravel(), above.ravel(), np.swapaxes(above, 1, 2).ravel()])
 
 
 class BandedLowRankFactor:
@@ -187,6 +207,11 @@ class SparseFactor:
         factor_times_noise = self.lower @ (noise * np.sqrt(self.pivots)[:, None])
         offsets = self.lu.solve(np.ascontiguousarray(factor_times_noise[self.lu.perm_c]))  # (P y)_i = y[perm_c[i]]
         return offsets, 0.5 * np.einsum("ds,ds->s", noise, noise)
+
+
+def _position_index(coordinates) -> np.ndarray:
+    """The index among the x and y coordinates of the x or y coordinate ``coordinates`` (3i + a -> 2i + a)."""
+    return coordinates - coordinates // 3
 
 
 def band_indices(poses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

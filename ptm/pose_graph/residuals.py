@@ -90,11 +90,11 @@ class StepFrames:
     @classmethod
     def of(cls, poses) -> "StepFrames":
         """The frames of consecutive poses of shape (..., N, 3)."""
-        previous, current = poses[..., :-1, :], poses[..., 1:, :]
+        previous = poses[..., :-1, :]
         cos, sin = np.cos(previous[..., 2]), np.sin(previous[..., 2])
-        dx = current[..., 0] - previous[..., 0]
-        dy = current[..., 1] - previous[..., 1]
-        return cls(cos, sin, cos * dx + sin * dy, -sin * dx + cos * dy, current[..., 2] - previous[..., 2])
+        step = poses[..., 1:, :] - previous
+        dx, dy, turn = step[..., 0], step[..., 1], step[..., 2]
+        return cls(cos, sin, cos * dx + sin * dy, -sin * dx + cos * dy, turn)
 
     def residuals(self, odometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The three components of r_k = (p_{k-1}^-1 o p_k) - o_k, each of shape (..., N-1).
@@ -150,14 +150,21 @@ class StepInformation:
         # r_k^T W_k r_k = sum_{a<=b} c_kab r_ka r_kb with c_kaa = W_kaa and c_kab = 2 W_kab (zero terms left out)
         self._quadratic_terms = [(a, b, (1.0 if a == b else 2.0) * self.information[:, a, b])
                                  for a in range(3) for b in range(a, 3) if np.any(self.information[:, a, b])]
+        terms = self._quadratic_terms
+        self._term_components = (np.array([a for a, _, _ in terms], dtype=int), np.array([b for _, b, _ in terms], dtype=int))
+        self._term_coefficients = np.array([c for _, _, c in terms]).reshape(len(terms), len(self.information))
 
     def energy(self, residuals) -> np.ndarray:
         """1/2 sum_k r_k^T Sigma_k^-1 r_k from the three residual components (each (..., N-1))."""
+        if np.ndim(residuals[0]) == 1:  # one state: the terms' dot products in one call (the same ddot each)
+            components = np.array(residuals)
+            first, second = self._term_components
+            return 0.5 * sum(np.vecdot(components[first] * components[second], self._term_coefficients).tolist())
         return 0.5 * sum((residuals[a] * residuals[b]) @ coefficients for a, b, coefficients in self._quadratic_terms)
 
     def multipliers(self, residuals) -> np.ndarray:
         """m_k = Sigma_k^-1 r_k, shape (N-1, 3), from the three residual components of one state."""
-        return np.einsum("kij,kj->ki", self.information, np.stack(residuals, axis=-1))
+        return np.einsum("kij,kj->ki", self.information, np.ascontiguousarray(np.transpose(residuals)))
 
 
 def odometry_residuals(poses, odometry) -> np.ndarray:

@@ -37,7 +37,7 @@ from .factorisation import BandedLowRankFactor, HessianLayout, SparseFactor
 from .residuals import StepFrames, StepInformation, poses_from_vector
 from .topology import TopologyHessian
 
-__all__ = ["PoseGraph", "LaplaceFit", "Linearisation", "SPARSE_ABOVE_DIMENSION"]
+__all__ = ["PoseGraph", "LaplaceFit", "Linearisation", "OdometryLinearisation", "SPARSE_ABOVE_DIMENSION"]
 
 #: Above this many variables the Hessian is factorised with sparse linear algebra.
 SPARSE_ABOVE_DIMENSION = 600
@@ -61,21 +61,21 @@ class LaplaceFit:
     failure: str = ""  # why the fit did not converge ("" when it did)
 
 
-class Linearisation:
-    """E of one partition at one state x, with its derivatives there.
+class OdometryLinearisation:
+    """The odometry term of E at one state x, with its derivatives there (no topology: shared by all partitions).
 
-    E is evaluated at once; the gradient and the Hessian blocks the first time
-    they are asked for, from the same step frames and residuals (a rejected
+    E_odometry is evaluated at once; the gradient and the Hessian blocks the first
+    time they are asked for, from the same step frames and residuals (a rejected
     step needs only E). Hessian blocks come as one array of shape (2N-3, 3, 3):
     the N-1 diagonal blocks of poses 1..N-1, then the N-2 blocks
     (pose k-1, pose k) above the diagonal.
     """
 
-    def __init__(self, graph: "PoseGraph", x, topology: TopologyHessian):
-        self.graph, self.x, self.topology = graph, x, topology
+    def __init__(self, graph: "PoseGraph", x):
+        self.graph, self.x = graph, x
         self.frames = StepFrames.of(poses_from_vector(x))
         self.residuals = self.frames.residuals(graph.odometry)
-        self.energy = float(graph.step_information.energy(self.residuals) + topology.energy(x))
+        self.energy = graph.step_information.energy(self.residuals)
 
     @cached_property
     def _multipliers(self) -> np.ndarray:  # Sigma_k^-1 r_k
@@ -91,7 +91,7 @@ class Linearisation:
         multipliers = self._multipliers
         gradient_blocks = np.einsum("kji,kj->ki", wrt_current, multipliers)
         gradient_blocks[:-1] += np.einsum("kji,kj->ki", wrt_previous[1:], multipliers[1:])
-        return gradient_blocks.ravel() + self.topology @ self.x
+        return gradient_blocks.ravel()
 
     @cached_property
     def gauss_newton(self) -> np.ndarray:
@@ -108,12 +108,6 @@ class Linearisation:
         return blocks
 
     @cached_property
-    def damping_scale(self) -> np.ndarray:
-        """The diagonal of the Gauss-Newton Hessian (odometry and topology): Levenberg-Marquardt damping."""
-        steps = len(self.residuals[0])
-        return np.diagonal(self.gauss_newton[:steps], axis1=1, axis2=2).ravel() + self.topology.diagonal
-
-    @cached_property
     def second_order(self) -> np.ndarray:
         """The blocks of sum_k m_k . d^2 r_k, the rest of the odometry term's exact Hessian."""
         second_previous, second_between = self.frames.second_order_blocks(self._multipliers)
@@ -122,6 +116,37 @@ class Linearisation:
         blocks[: steps - 1] = second_previous[1:]
         blocks[steps:] = second_between[1:]
         return blocks
+
+
+class Linearisation:
+    """E of one partition at one state x, with its derivatives there: the odometry part
+    (:class:`OdometryLinearisation`, whose Hessian blocks these are) plus the topology term."""
+
+    def __init__(self, graph: "PoseGraph", x, topology: TopologyHessian,
+                 odometry: OdometryLinearisation | None = None):
+        self.graph, self.x, self.topology = graph, x, topology
+        self.odometry = odometry if odometry is not None else OdometryLinearisation(graph, x)
+        self.energy = float(self.odometry.energy + topology.energy(x))
+
+    @cached_property
+    def gradient(self) -> np.ndarray:
+        return self.odometry.gradient + self.topology @ self.x
+
+    @property
+    def gauss_newton(self) -> np.ndarray:
+        """The blocks of J^T Sigma^-1 J, the odometry term's Gauss-Newton Hessian."""
+        return self.odometry.gauss_newton
+
+    @property
+    def second_order(self) -> np.ndarray:
+        """The blocks of sum_k m_k . d^2 r_k, the rest of the odometry term's exact Hessian."""
+        return self.odometry.second_order
+
+    @cached_property
+    def damping_scale(self) -> np.ndarray:
+        """The diagonal of the Gauss-Newton Hessian (odometry and topology): Levenberg-Marquardt damping."""
+        steps = self.graph.n - 1
+        return np.diagonal(self.gauss_newton[:steps], axis1=1, axis2=2).ravel() + self.topology.diagonal
 
 
 class PoseGraph:
@@ -160,6 +185,11 @@ class PoseGraph:
         self.step_tolerance = float(step_tolerance)
         self.close_tolerance = float(close_tolerance)
         self.layout = HessianLayout(self.n - 1)
+        self._dead_reckoning = self.dead_reckoning()
+
+    @cached_property
+    def _at_dead_reckoning(self) -> OdometryLinearisation:
+        return OdometryLinearisation(self, self._dead_reckoning)
 
     def dead_reckoning(self) -> np.ndarray:
         """The state that composes the odometry rows exactly (zero odometry energy): :func:`ptm.se2.dead_reckoning`."""
@@ -170,11 +200,10 @@ class PoseGraph:
         at dead reckoning: with the headings fixed, the residuals are linear in the positions and the
         ties quadratic, so this is one linear (sparse) solve. A start that depends on the partition only."""
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
-        point = Linearisation(self, self.dead_reckoning(), topology)
-        positions = np.flatnonzero(np.arange(self.dimension) % 3 != 2)
-        hessian = self.hessian_matrix(topology, point.gauss_newton)[positions][:, positions]
+        point = self.linearise(self._dead_reckoning, topology)
         start = point.x.copy()
-        start[positions] -= scipy.sparse.linalg.spsolve(hessian.tocsc(), point.gradient[positions])
+        start[self.layout.positions] -= scipy.sparse.linalg.spsolve(
+            self.layout.position_matrix(topology, point.gauss_newton), point.gradient[self.layout.positions])
         return start
 
     def topology(self, labels) -> TopologyHessian:
@@ -190,7 +219,10 @@ class PoseGraph:
     def linearise(self, x, partition) -> Linearisation:
         """E at the state ``x`` under ``partition`` (labels or a :meth:`topology`), and its derivatives."""
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
-        return Linearisation(self, np.asarray(x, dtype=float), topology)
+        x = np.asarray(x, dtype=float)
+        # both starts of every fit are linearised at dead reckoning, whose odometry part is remembered
+        at_dead_reckoning = self._at_dead_reckoning if np.array_equal(x, self._dead_reckoning) else None
+        return Linearisation(self, x, topology, at_dead_reckoning)
 
     def energies_around(self, fit: LaplaceFit, offsets) -> np.ndarray:
         """E(P* + delta_s) of the fitted partition for offsets delta_s given as columns (d, S).
@@ -232,7 +264,7 @@ class PoseGraph:
         the caller records the failure.
         """
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
-        point = Linearisation(self, np.array(start, dtype=float), topology)
+        point = self.linearise(np.array(start, dtype=float), topology)
         energy = point.energy
         if not math.isfinite(energy):
             return self._unconverged(point, topology, 0, 0, "non-finite energy at the start")

@@ -72,26 +72,25 @@ class TopologyHessian:
         """
         labels = np.asarray(labels)
         dimension = 3 * (len(labels) - 1)
-        sizes = np.bincount(labels)[labels]
-        free_labels = labels[1:]
-        weight = 1.0 / sigma_topology**2
-        star_diagonal = np.zeros(dimension)
-        members = np.flatnonzero(sizes[1:] > 1)
-        for axis in (0, 1):
-            star_diagonal[3 * members + axis] = weight * sizes[1:][members]
-        set_labels = np.unique(free_labels[members])
-        low_rank = np.zeros((dimension, 2 * len(set_labels)))
-        column_of_set = np.searchsorted(set_labels, free_labels[members])
-        for axis in (0, 1):
-            low_rank[3 * members + axis, 2 * column_of_set + axis] = 1.0 / sigma_topology
+        counts = np.bincount(labels)
+        free_sizes = counts[labels[1:]]
+        members = np.flatnonzero(free_sizes > 1)  # free poses of sets with two or more members
+        shared = counts > 1  # the sets with columns (each has a free member)
+        column_of_label = np.cumsum(shared) - 1
+        column_of_set = column_of_label[labels[1:][members]]
+        rank = 2 * int(np.count_nonzero(shared))
         coordinates = np.concatenate([3 * members, 3 * members + 1])
         columns = np.concatenate([2 * column_of_set, 2 * column_of_set + 1])
+        star_diagonal = np.zeros(dimension)
+        star_diagonal[coordinates] = (1.0 / sigma_topology**2) * np.concatenate([free_sizes[members]] * 2)
+        low_rank = np.zeros((dimension, rank))
+        low_rank[coordinates, columns] = 1.0 / sigma_topology
         order = np.argsort(columns, kind="stable")
-        starts = np.searchsorted(columns[order], np.arange(low_rank.shape[1]))
-        set_sizes = np.zeros(low_rank.shape[1])
-        set_sizes[columns] = sizes[1:][np.concatenate([members, members])]
-        origin_in_set = np.zeros(low_rank.shape[1])
-        origin_in_set[2 * np.flatnonzero(set_labels == labels[0])[:, None] + np.arange(2)] = 1.0
+        starts = np.searchsorted(columns[order], np.arange(rank))
+        set_sizes = np.repeat(counts[shared], 2).astype(float)
+        origin_in_set = np.zeros(rank)
+        if shared[labels[0]]:
+            origin_in_set[2 * column_of_label[labels[0]] + np.arange(2)] = 1.0
         return cls(labels, star_diagonal, low_rank,
                    MemberSums(coordinates[order], columns[order], starts, 1.0 / sigma_topology),
                    set_sizes, origin_in_set)
