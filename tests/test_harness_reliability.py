@@ -239,7 +239,7 @@ def test_zero_workers_are_refused_on_the_command_line(tmp_path, capsys):
         with pytest.raises(SystemExit) as stop:
             main([*command, "--workers", "0", "--out", str(tmp_path)])
         assert stop.value.code == 2
-        assert "--workers: must be a positive number of processes, got '0'" in capsys.readouterr().err
+        assert "--workers: must be a positive integer, got '0'" in capsys.readouterr().err
 
 
 def test_an_out_that_is_a_file_or_cannot_be_created_is_refused(tmp_path, capsys):

@@ -29,8 +29,7 @@ import numpy as np
 
 import ptm
 
-from ptm_bench.evaluation import calibration
-from ptm_bench.evaluation.experiment import DEFAULTS
+from ptm_bench.evaluation.online import calibrated_mapper, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 from ptm_bench.simulation.generate import generate_dataset
 from ptm_bench.world.floorplan import corridor_grid
@@ -40,7 +39,6 @@ __all__ = ["scale_rows"]
 GRID_SIDE = 10
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
-ODOMETRY = DEFAULTS["odometry"]
 
 
 def _grid_run(side: int, seed: int) -> ptm.Dataset:
@@ -51,27 +49,14 @@ def _grid_run(side: int, seed: int) -> ptm.Dataset:
 def _dataset_and_mapper(side: int = GRID_SIDE, seed: int = 0) -> tuple[ptm.Dataset, ptm.OnlineMapper]:
     """The grid run of the section and a fresh mapper for it, calibrated on the held-out run."""
     dataset = _grid_run(side, seed)
-    held_out = [_grid_run(HELD_OUT_SIDE, HELD_OUT_SEED)]
-    appearance, _ = calibration.fitted_appearance(held_out, prior_mean="global")
-    radius, _ = calibration.penalty_radius(ODOMETRY, held_out)
-    sigma_topology, _ = calibration.topology_sigma(ODOMETRY, dataset.meta)
-    odometry = ptm.OdometryModel(ODOMETRY["sigma_xy"], ODOMETRY["sigma_theta"], sigma_topology, radius,
-                                 ODOMETRY["max_penalty"], n_importance=ODOMETRY["n_importance"], seed=seed)
-
-    def prior_of(n: int) -> ptm.PoissonPrior:
-        return ptm.PoissonPrior(calibration.prior_rate({"prior_rate": None}, n, held_out)[0])
-
-    return dataset, ptm.OnlineMapper(prior_of, [appearance, odometry], seed=seed)
+    mapper, _ = calibrated_mapper(dataset, [_grid_run(HELD_OUT_SIDE, HELD_OUT_SEED)], seed=seed)
+    return dataset, mapper
 
 
 def scale_rows(args) -> list[dict]:
     side = max(3, round(GRID_SIDE * math.sqrt(args.scale)))
     dataset, mapper = _dataset_and_mapper(side)
-    for index in range(dataset.n):
-        step = None if index == 0 else index - 1
-        result = mapper.add(signature=dataset.signatures[index],
-                            odometry=None if step is None else dataset.odometry[step],
-                            odometry_cov=None if step is None else dataset.odometry_cov[step])
+    result = replay(dataset, mapper)
     latency = np.array(result.diagnostics["latency_s"])
     n = dataset.n
     values = [

@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "ptm_bench.cli.generate",
     "ptm_bench.cli.import_carmen",
     "ptm_bench.cli.export",
+    "ptm_bench.cli.online",
 )
 
 

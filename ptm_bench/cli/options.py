@@ -6,7 +6,7 @@ They fail at the command line, before any simulation, with a message naming the 
     2
     >>> positive_int("0")
     Traceback (most recent call last):
-    argparse.ArgumentTypeError: must be a positive number of processes, got '0'
+    argparse.ArgumentTypeError: must be a positive integer, got '0'
     >>> import tempfile
     >>> with tempfile.NamedTemporaryFile() as file:
     ...     output_folder(Path(file.name), "--out")  # doctest: +ELLIPSIS
@@ -31,9 +31,9 @@ def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number of processes, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
     if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive number of processes, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
     return value
 
 

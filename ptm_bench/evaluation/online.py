@@ -1,0 +1,77 @@
+"""Replaying a run through the online mapper, with its parameters calibrated as a sweep calibrates them
+(docs/model.md §3.8; :mod:`ptm_bench.evaluation.calibration`).
+
+The mapper sees each detection once, in order, so what a sweep takes from the whole scored run is not
+available: the appearance model is fitted with one prior mean for every run (the run's own mean signature
+is known only at its end), and the prior rate is a function of n (places per detection on the held-out
+runs x n, :func:`ptm_bench.evaluation.calibration.prior_rate`). The penalty radius comes from the
+held-out places and the tie from the detector's radius, as in a sweep.
+
+    $ ptm-bench online intel.npz --calibration aces.npz fhw.npz acapulco.npz
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import ptm
+
+from ptm_bench.evaluation import calibration
+from ptm_bench.evaluation.experiment import DEFAULTS, MODEL_NAMES
+
+__all__ = ["calibrated_mapper", "replay"]
+
+
+def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], models=MODEL_NAMES,
+                      particles: int = 128, seed: int = 0) -> tuple[ptm.OnlineMapper, dict]:
+    """An :class:`ptm.OnlineMapper` for ``dataset`` with ``models`` calibrated on the labelled ``held_out`` runs,
+    and the parameters it uses with their sources (``{name: value, "source_" + name: text}``).
+
+    ``dataset`` is read only for what a robot knows before it starts: the detector's radius (its meta) and
+    which measurements it has. A model the dataset has no measurements for is a ``ValueError``.
+    """
+    unknown = set(models) - set(MODEL_NAMES)
+    if unknown or not models:
+        raise ValueError(f"models must be a non-empty subset of {MODEL_NAMES}, got {list(models)}")
+    settings, built, used = DEFAULTS["odometry"], [], {}
+    if "appearance" in models:
+        if dataset.signatures is None:
+            raise ValueError("the dataset has no signatures for the appearance model")
+        model, used["source_appearance"] = calibration.fitted_appearance(held_out, prior_mean="global")
+        built.append(model)
+    if "odometry" in models:
+        if dataset.odometry is None:
+            raise ValueError("the dataset has no odometry for the odometry model")
+        used["penalty_radius"], used["source_penalty_radius"] = calibration.penalty_radius(settings, held_out)
+        used["sigma_topology"], used["source_sigma_topology"] = calibration.topology_sigma(settings, dataset.meta)
+        built.append(ptm.OdometryModel(settings["sigma_xy"], settings["sigma_theta"], used["sigma_topology"],
+                                       used["penalty_radius"], settings["max_penalty"],
+                                       n_importance=settings["n_importance"], seed=seed))
+    share = calibration.places_per_detection(held_out)
+    used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
+                                 f"(held out) x n places")
+
+    def prior_of(n: int) -> ptm.PoissonPrior:
+        return ptm.PoissonPrior(calibration.prior_rate({"prior_rate": None}, n, held_out)[0])
+
+    return ptm.OnlineMapper(prior_of, built, particles=particles, seed=seed), used
+
+
+def replay(dataset: ptm.Dataset, mapper: ptm.OnlineMapper,
+           each: Callable[[int, ptm.PTM], None] | None = None) -> ptm.PTM:
+    """Feed ``dataset``'s detections to ``mapper`` one at a time (signature, odometry row and covariance, as
+    it has them); ``each(n, ptm)`` after every update. Returns the PTM after the last detection."""
+    uses_appearance = any(isinstance(model, (ptm.AppearanceModel, ptm.JointAppearanceModel))
+                          for model in mapper.models)
+    uses_odometry = any(isinstance(model, ptm.OdometryModel) for model in mapper.models)
+    result = None
+    for index in range(dataset.n):
+        row = index - 1
+        with_odometry = uses_odometry and index > 0
+        result = mapper.add(
+            signature=dataset.signatures[index] if uses_appearance else None,
+            odometry=dataset.odometry[row] if with_odometry else None,
+            odometry_cov=dataset.odometry_cov[row] if with_odometry and dataset.odometry_cov is not None else None)
+        if each is not None:
+            each(index + 1, result)
+    return result
