@@ -26,7 +26,8 @@ def test_a_result_without_several_chains_gives_no_warning():
 @pytest.mark.parametrize("name, value, shown", [
     ("rhat_log_prob", 1.52, "split R-hat of log P 1.52"),
     ("rhat_num_places", float("inf"), "of the number of places inf"),
-    ("coassignment_max_difference", 0.3, "largest co-assignment difference 0.30"),
+    ("coassignment_max_difference", 0.3, "largest co-assignment difference 0.3 "),
+    ("coassignment_max_difference", 0.0504, "largest co-assignment difference 0.0504 "),  # not "0.05 (<= 0.05)"
 ])
 def test_each_disagreement_is_reported_with_every_value_reached(name, value, shown):
     message = disagreement({**AGREE, name: value})
