@@ -79,6 +79,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.spatial.distance
+from scipy.special import logsumexp
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
@@ -439,7 +440,7 @@ class OdometryTerm:
             self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
         ])
         # stratified (deterministic allocation) balance-heuristic estimator: the mean of all weights
-        estimate = float(_logsumexp(log_weights)) - math.log(len(log_weights))
+        estimate = float(logsumexp(log_weights)) - math.log(len(log_weights))
         weights = np.exp(log_weights - float(log_weights.max()))  # scaled weights, for the ESS and the error
         mean = float(weights.mean())
         ess = float(weights.sum() ** 2 / np.sum(weights**2))
@@ -488,7 +489,7 @@ class OdometryTerm:
                             _lower_solve(relative_factor, moved - mean[:, None]))
             exponents[c] = (mixture.log_alphas[c] - 0.5 * np.einsum("ms,ms->s", standardised, standardised)
                             - log_det + 0.5 * np.einsum("ms,ms->s", moved, moved))
-        log_ratio = _logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
+        log_ratio = logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
         states = fit.x + offsets.T
         return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
                 - self.penalties(states, offsets, fit.x, labels, centre_distance))
@@ -735,23 +736,6 @@ def _solve_triangular(matrix, rhs, lower: bool) -> np.ndarray:
     if info != 0:
         raise ValueError(f"triangular solve failed (LAPACK info {info})")
     return solution
-
-
-def _logsumexp(values, axis=None):
-    """``scipy.special.logsumexp(values, axis)`` of real values, by the same operations without its array-API
-    dispatch (which costs ~90 us a call): the largest terms are summed separately,
-    log1p(sum_others exp(a - a_max) / m) + log m + a_max, and log sum exp(a) where that is not finite."""
-    axis = tuple(range(np.ndim(values))) if axis is None else axis
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        fallback = np.log(np.sum(np.exp(values), axis=axis, keepdims=True))
-        largest = np.max(values, axis=axis, keepdims=True)
-        is_largest = values == largest
-        count = np.sum(is_largest.astype(values.dtype), axis=axis, keepdims=True, dtype=values.dtype)
-        rest = np.sum(np.exp(np.where(is_largest, -np.inf, values) - largest), axis=axis, keepdims=True)
-        rest = np.where(rest == 0, rest, rest / count)
-        value = np.log1p(rest) + np.log(count) + largest
-    value = np.squeeze(np.where(np.isfinite(value), value, fallback), axis=axis)
-    return value[()] if value.ndim == 0 else value
 
 
 def _canonical_labels(partition) -> tuple[int, ...]:
