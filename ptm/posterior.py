@@ -49,7 +49,9 @@ class Posterior:
                 raise ValueError(f"{term!r} has no log_likelihood(partition) method")
         self.block_terms = [term for term in self.terms if hasattr(term, "block_log_likelihood")]
         self.global_terms = [term for term in self.terms if not hasattr(term, "block_log_likelihood")]
-        self.log_prior_by_size = PriorTable(prior, self.n)
+        self.log_prior_by_size = [-math.inf] + [
+            _checked(prior.log_prob(self.n, m), "prior") for m in range(1, self.n + 1)
+        ]
         self._block_cache = BoundedCache(block_cache_size)
 
     # -- the pieces the samplers use ------------------------------------------------------------
@@ -122,30 +124,6 @@ class Posterior:
 
     def __repr__(self) -> str:
         return f"Posterior(n={self.n}, prior={self.prior!r}, terms={[_name(t) for t in self.terms]})"
-
-
-class PriorTable:
-    """log P(T) by number of sets m = 0..n (entry 0 is -inf), filled as the samplers ask for entries.
-
-    A chain visits a narrow range of m, and each entry of a Poisson prior costs milliseconds: at n = 200
-    the whole table took over a second per posterior, paid again by the online mapper for every
-    detection. Entries m = 1 and n are computed at once, so a prior that fails does so on construction.
-    """
-
-    def __init__(self, prior, n: int):
-        self._prior, self._n = prior, n
-        self._values: list[float | None] = [-math.inf] + [None] * n
-        for m in {1, n}:
-            self.__getitem__(m)
-
-    def __len__(self) -> int:
-        return self._n + 1
-
-    def __getitem__(self, m: int) -> float:
-        value = self._values[m]
-        if value is None:
-            value = self._values[m] = _checked(self._prior.log_prob(self._n, m), "prior")
-        return value
 
 
 def _name(term) -> str:

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from scipy.special import gammaln
 
-import ptm
 from ptm import PoissonPrior
 from ptm.partitions import stirling2
 
@@ -84,34 +83,3 @@ def test_the_rate_with_given_expected_places_reproduces_them(n, places):
 def test_expected_places_out_of_reach_are_refused(n, places):
     with pytest.raises(ValueError, match="expected places|n \\(the number of detections\\)"):
         PoissonPrior.with_expected_places(n, places)
-
-
-class CountingPrior:
-    """A prior that counts its evaluations, or returns NaN for ``broken_at`` sets."""
-
-    def __init__(self, rate, broken_at=None):
-        self.inner, self.broken_at, self.calls = PoissonPrior(rate), broken_at, []
-
-    def log_prob(self, n, m):
-        self.calls.append(m)
-        return math.nan if m == self.broken_at else self.inner.log_prob(n, m)
-
-
-def test_the_posterior_fills_its_prior_table_as_asked_with_the_priors_values():
-    prior = CountingPrior(40.0)
-    posterior = ptm.Posterior(ptm.Dataset(signatures=np.zeros((60, 2))), prior)
-    assert sorted(prior.calls) == [1, 60]  # the ends, checked on construction
-    table = posterior.log_prior_by_size
-    assert len(table) == 61 and table[0] == -math.inf
-    expected = {m: prior.inner.log_prob(60, m) for m in (20, 21)}
-    assert [table[m] for m in (20, 21, 20)] == [expected[20], expected[21], expected[20]]
-    assert sorted(prior.calls) == [1, 20, 21, 60]  # each entry computed once, when first asked for
-
-
-def test_a_prior_that_fails_is_refused_on_construction_or_when_its_entry_is_asked_for():
-    signatures = np.zeros((8, 2))
-    with pytest.raises(ValueError, match="prior term returned nan"):
-        ptm.Posterior(ptm.Dataset(signatures=signatures), CountingPrior(4.0, broken_at=8))
-    posterior = ptm.Posterior(ptm.Dataset(signatures=signatures), CountingPrior(4.0, broken_at=3))
-    with pytest.raises(ValueError, match="prior term returned nan"):
-        posterior.log_prob([0, 1, 2, 0, 1, 2, 0, 1])
