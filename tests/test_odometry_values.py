@@ -53,8 +53,12 @@ CORRELATED_VALUES = [
     ([0, 1, 2, 2, 3, 3, 3, 3, 0, 3, 3], -860.655650938851),
     ([0, 1, 2, 3, 0, 3, 1, 1, 0, 3, 1], -659.9173242804034),
     ([0, 1, 2, 3, 2, 0, 0, 1, 0, 1, 3], -903.3914760504176),
-    ([0, 1, 2, 0, 0, 2, 1, 1, 1, 3, 3], -799.4220190003432),
-    ([0, 1, 0, 0, 1, 2, 0, 2, 2, 2, 2], -1075.3238853571552),
+    # The next two were -799.4220190003432 and -1075.3238853571552 until the pose-graph solver got its line
+    # search: its fits of these partitions, 720 and 1000 nats below the truth, now end elsewhere within the
+    # step tolerance, and their penalty-mixture estimates moved by 2e-6 and 1e-5 nats (the other 28 values
+    # by less than 1e-9 relative)
+    ([0, 1, 2, 0, 0, 2, 1, 1, 1, 3, 3], -799.4220169453793),
+    ([0, 1, 0, 0, 1, 2, 0, 2, 2, 2, 2], -1075.3238752886193),
 ]
 
 
