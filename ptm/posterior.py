@@ -33,7 +33,8 @@ class Posterior:
     Parameters
     ----------
     dataset : ptm.Dataset
-    prior : object with ``log_prob(n, m)`` (e.g. :class:`ptm.PoissonPrior`); its ``table(n)`` (entry m: ``log_prob(n, m)``) when it has one
+    prior : object with ``log_prob(n, m)`` (e.g. :class:`ptm.PoissonPrior`)
+        Read through its ``table(n)`` (entry m: ``log_prob(n, m)``) when it has one.
     models : iterable of models (with ``bind(dataset)``) or of already bound terms
     block_cache_size : int
         Bound on the memo of per-set scores.

@@ -368,9 +368,9 @@ class PoseGraph:
     def _backtracked(self, point: Linearisation, step, topology: TopologyHessian):
         """(the shortened step, its Linearisation) for the first share in ``BACKTRACKING`` of ``step`` that
         lowers E from ``point``, or None. Along a nearly flat direction of E (a trajectory bending where
-        only weak ties hold it: the Hessian's smallest eigenvalue 4e-10 of its largest on a 70-detection grid) the Newton
-        step is right in direction but too long, and the damping that would shorten it suppresses that
-        direction altogether: without this, fits there crept for hundreds of iterations."""
+        only weak ties hold it: the Hessian's smallest eigenvalue is 4e-10 of its largest on a 70-detection
+        grid) the Newton step is right in direction but too long, and the damping that would shorten it
+        suppresses that direction altogether: without this, fits there crept for hundreds of iterations."""
         energy = point.energy
         for share in BACKTRACKING:
             candidate = Linearisation(self, point.x + share * step, topology)
@@ -380,7 +380,8 @@ class PoseGraph:
 
     def _negligible(self, step, gradient, energy) -> bool:
         predicted_decrease = -0.5 * float(gradient @ step)
-        return np.max(np.abs(step)) < self.step_tolerance or predicted_decrease < NEGLIGIBLE_DECREASE * (1.0 + abs(energy))
+        return (np.max(np.abs(step)) < self.step_tolerance
+                or predicted_decrease < NEGLIGIBLE_DECREASE * (1.0 + abs(energy)))
 
     # -- linear algebra ---------------------------------------------------------------------------
 
