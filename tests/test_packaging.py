@@ -32,8 +32,11 @@ def test_every_package_folder_is_listed_in_pyproject():
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
-    subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
-                    "--wheel-dir", str(out), "--quiet"], check=True, capture_output=True)
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                            "--wheel-dir", str(out), "--quiet"], capture_output=True, text=True)
+    # pip's own words when it fails (once, under a loaded CI run, it failed without them)
+    assert build.returncode == 0, f"pip wheel exited with {build.returncode}:\n{build.stdout[-2000:]}" \
+                                  f"{build.stderr[-4000:]}"
     (built,) = out.glob("ptm-*.whl")
     return built
 
