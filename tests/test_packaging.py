@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -13,7 +14,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-# One pytest-xdist worker builds the wheel: setuptools writes build/ in the checkout.
+# What a wheel is built from: the build runs in a copy of these, never in the checkout, whose build/ folder
+# (left by an earlier build, or an editable install) made setuptools fail with "File exists" in CI.
+SOURCES = ("pyproject.toml", "README.md", "ptm", "ptm_bench", "worlds")
+# One pytest-xdist worker runs these tests, so that the wheel is built once.
 pytestmark = pytest.mark.xdist_group("wheel_build")
 
 
@@ -32,7 +36,13 @@ def test_every_package_folder_is_listed_in_pyproject():
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+    source = tmp_path_factory.mktemp("source")
+    for name in SOURCES:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+        else:
+            shutil.copy2(ROOT / name, source / name)
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "--no-build-isolation",
                             "--wheel-dir", str(out), "--quiet"], capture_output=True, text=True)
     # pip's own words when it fails (once, under a loaded CI run, it failed without them)
     assert build.returncode == 0, f"pip wheel exited with {build.returncode}:\n{build.stdout[-2000:]}" \

@@ -108,7 +108,7 @@ def run(args) -> int:
 
 def failure_report(table, retry_command: str, shown: int = 3) -> str:
     """The distinct errors of the failed cells (most frequent first), and how to rerun only those cells."""
-    errors = table.loc[table["status"] != "ok", "error"].fillna("").astype(str).value_counts()
+    errors = table.loc[table["status"] != "ok", "error"].astype("string").fillna("").value_counts()
     lines = [f"  {count} cell{'s' if count > 1 else ''}: {error}" for error, count in errors.head(shown).items()]
     if len(errors) > shown:
         lines.append(f"  ... and {len(errors) - shown} other errors (column 'error' of the table)")

@@ -197,7 +197,7 @@ def _warnings(table: pd.DataFrame) -> pd.Series:
     disagree)."""
     if "warning" not in table.columns:
         return pd.Series([], dtype=str)
-    values = table["warning"].fillna("").astype(str)
+    values = table["warning"].astype("string").fillna("")
     return values[values != ""]
 
 

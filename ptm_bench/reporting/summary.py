@@ -214,7 +214,7 @@ def _chains_agree(group: pd.DataFrame) -> float:
     if not len(sampled):
         return math.nan
     warnings = sampled["warning"] if "warning" in sampled else pd.Series("", index=sampled.index)
-    return float((warnings.fillna("").astype(str) == "").mean())
+    return float((warnings.astype("string").fillna("") == "").mean())
 
 
 def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
