@@ -23,6 +23,7 @@ The odometry target is enumerated once per session (``mixed_target(6)``).
 """
 
 import math
+from types import SimpleNamespace
 
 import pytest
 
@@ -32,6 +33,7 @@ from helpers import appearance_posterior
 from ptm.moves import GuidedSplitMerge, MapReassign, Proposal, initial_state
 from ptm.sampler import guided_moves, second_stage_log_ratio
 from ptm.surrogate import OdometrySurrogate
+from ptm_bench.evaluation.cell import GUIDED_FROM_N, resolved_moves
 from test_odometry import mixed_target, square_loop_dataset
 from test_sampler import TOLERANCE
 from test_sampler_exactness import WithoutProposalRatio, total_variation_to_exact
@@ -202,3 +204,11 @@ def test_coassignment_difference_between_chains_by_hand():
         recorder.flush()
     # chain 0: C(0, 1) = 1, C(1, 2) = 0; chain 1: both 1/2
     assert recorder.result("mcmc", {}).diagnostics["coassignment_max_difference"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize(("n", "global_terms", "expected"), [
+    (GUIDED_FROM_N - 1, True, "default"), (GUIDED_FROM_N, True, "guided"), (150, False, "default")])
+def test_auto_moves_are_guided_from_many_detections_with_odometry(n, global_terms, expected):
+    posterior = SimpleNamespace(n=n, has_global_terms=global_terms)
+    assert resolved_moves("auto", posterior) == expected
+    assert resolved_moves("paper", posterior) == "paper"  # a named move set is kept

@@ -69,6 +69,10 @@ AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
 #: places is at most AGREEMENT_RHAT and every two chains' co-assignment matrices differ by at most
 #: AGREEMENT_COASSIGNMENT (issue 11's targets).
 AGREEMENT_RHAT, AGREEMENT_COASSIGNMENT = 1.05, 0.05
+#: ``inference.moves = "auto"`` samples with the guided moves from this many detections on (with odometry).
+#: Below it the default moves: on 12-detection runs with shared decors the guided ones mixed worst (results/
+#: ablations), and at 29 detections the default ones left a chain at all-one-place (docs/model.md §3.4).
+GUIDED_FROM_N = 20
 TOP_K = 5
 TRACE_POINTS = 200
 
@@ -155,6 +159,7 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     posterior, used = build_posterior(cell, dataset)
     sampler_seed, _ = _inference_seeds(cell["seed"])
     method = inference["method"]
+    moves = resolved_moves(inference["moves"], posterior)
     result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
         result = _affordable_exact_posterior(posterior, inference)
@@ -164,13 +169,14 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     if method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], **_sampler_options(inference, posterior))
+                                   chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
-                          seed=sampler_seed, chains=inference["chains"], **_sampler_options(inference, posterior))
+                          seed=sampler_seed, chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
+    row["inference_moves"] = moves if method in ("mcmc", "tempered") else ""
     row["warning"] = disagreement(result.diagnostics)
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
@@ -192,13 +198,21 @@ def _affordable_exact_posterior(posterior: ptm.Posterior, inference: dict) -> pt
         return None
 
 
-def _sampler_options(inference: dict, posterior: ptm.Posterior) -> dict:
-    """The moves and delayed acceptance of the cell's sampler (``inference.moves``), with the warm-up of
-    ``"guided"`` (docs/model.md §3.4)."""
-    if inference["moves"] == "guided":
+def resolved_moves(moves: str, posterior: ptm.Posterior) -> str:
+    """The move set ``inference.moves`` stands for on this posterior: ``"auto"`` is ``"guided"`` from
+    ``GUIDED_FROM_N`` detections on when a global (odometry) term is present, else ``"default"``."""
+    if moves != "auto":
+        return moves
+    return "guided" if posterior.n >= GUIDED_FROM_N and posterior.has_global_terms else "default"
+
+
+def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
+    """The sampler's moves and delayed acceptance for a resolved move set (:func:`resolved_moves`), with the
+    warm-up of ``"guided"`` (docs/model.md §3.4)."""
+    if moves == "guided":
         return ptm.sampler.guided_options(posterior, inference["delayed_acceptance"])
-    moves = [(ptm.moves.SplitMerge(), 1.0)] if inference["moves"] == "paper" else None
-    return {"moves": moves, "delayed_acceptance": inference["delayed_acceptance"]}
+    chosen = [(ptm.moves.SplitMerge(), 1.0)] if moves == "paper" else None
+    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"]}
 
 
 def disagreement(diagnostics: dict) -> str:

@@ -52,7 +52,7 @@ __all__ = ["DEFAULTS", "DEMO_CONFIG", "MODEL_NAMES", "BASELINE_NAMES", "Experime
 MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
-MOVE_SETS = ("default", "paper", "guided")
+MOVE_SETS = ("auto", "default", "paper", "guided")
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 APPEARANCE_MODELS = ("joint", "independent")
 APPEARANCE_PRIOR_MEANS = ("global", "run")
@@ -80,10 +80,11 @@ DEFAULTS = {
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
         "exact_max_n": 10,
-        # "default" (split/merge + Gibbs), "paper" (split/merge only), or "guided" (for many detections: data-driven
+        # "default" (split/merge + Gibbs), "paper" (split/merge only), "guided" (for many detections: data-driven
         # moves, the odometry surrogate in delayed acceptance's first stage, a cheap warm-up per chain of "mcmc";
-        # docs/model.md §3.4)
-        "moves": "default",
+        # docs/model.md §3.4), or "auto": "guided" from ptm_bench.evaluation.cell.GUIDED_FROM_N detections on
+        # with odometry, else "default" (the row's inference_moves says which)
+        "moves": "auto",
         "temperatures": [1.0, 0.5, 0.25, 0.12, 0.06, 0.03],  # inverse temperatures of method "tempered"
     },
     "odometry": {
