@@ -23,7 +23,6 @@ The odometry target is enumerated once per session (``mixed_target(6)``).
 """
 
 import math
-from types import SimpleNamespace
 
 import pytest
 
@@ -206,9 +205,7 @@ def test_coassignment_difference_between_chains_by_hand():
     assert recorder.result("mcmc", {}).diagnostics["coassignment_max_difference"] == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize(("n", "global_terms", "expected"), [
-    (GUIDED_FROM_N - 1, True, "default"), (GUIDED_FROM_N, True, "guided"), (150, False, "default")])
-def test_auto_moves_are_guided_from_many_detections_with_odometry(n, global_terms, expected):
-    posterior = SimpleNamespace(n=n, has_global_terms=global_terms)
-    assert resolved_moves("auto", posterior) == expected
-    assert resolved_moves("paper", posterior) == "paper"  # a named move set is kept
+@pytest.mark.parametrize(("n", "expected"), [(GUIDED_FROM_N - 1, "default"), (GUIDED_FROM_N, "guided"), (150, "guided")])
+def test_auto_moves_are_guided_from_many_detections(n, expected):
+    assert resolved_moves("auto", n) == expected
+    assert resolved_moves("paper", n) == "paper"  # a named move set is kept

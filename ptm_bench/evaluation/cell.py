@@ -69,9 +69,10 @@ AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
 #: places is at most AGREEMENT_RHAT and every two chains' co-assignment matrices differ by at most
 #: AGREEMENT_COASSIGNMENT (issue 11's targets).
 AGREEMENT_RHAT, AGREEMENT_COASSIGNMENT = 1.05, 0.05
-#: ``inference.moves = "auto"`` samples with the guided moves from this many detections on (with odometry).
-#: Below it the default moves: on 12-detection runs with shared decors the guided ones mixed worst (results/
-#: ablations), and at 29 detections the default ones left a chain at all-one-place (docs/model.md §3.4).
+#: ``inference.moves = "auto"`` samples with the guided moves from this many detections on. Below it the default
+#: moves: on 12-detection runs with shared decors the guided ones mixed worst (results/ablations). From 25
+#: detections on the default ones leave a chain at all-one-place, with odometry (docs/model.md §3.4) and with
+#: appearance alone (four chains on a 25-detection grid: split R-hat 1.66, MAP all-one-place; guided: 1.001).
 GUIDED_FROM_N = 20
 TOP_K = 5
 TRACE_POINTS = 200
@@ -159,7 +160,7 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     posterior, used = build_posterior(cell, dataset)
     sampler_seed, _ = _inference_seeds(cell["seed"])
     method = inference["method"]
-    moves = resolved_moves(inference["moves"], posterior)
+    moves = resolved_moves(inference["moves"], posterior.n)
     result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
         result = _affordable_exact_posterior(posterior, inference)
@@ -198,12 +199,12 @@ def _affordable_exact_posterior(posterior: ptm.Posterior, inference: dict) -> pt
         return None
 
 
-def resolved_moves(moves: str, posterior: ptm.Posterior) -> str:
-    """The move set ``inference.moves`` stands for on this posterior: ``"auto"`` is ``"guided"`` from
-    ``GUIDED_FROM_N`` detections on when a global (odometry) term is present, else ``"default"``."""
+def resolved_moves(moves: str, n: int) -> str:
+    """The move set ``inference.moves`` stands for on ``n`` detections: ``"auto"`` is ``"guided"`` from
+    ``GUIDED_FROM_N`` detections on, else ``"default"``."""
     if moves != "auto":
         return moves
-    return "guided" if posterior.n >= GUIDED_FROM_N and posterior.has_global_terms else "default"
+    return "guided" if n >= GUIDED_FROM_N else "default"
 
 
 def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:

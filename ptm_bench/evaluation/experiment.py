@@ -82,8 +82,8 @@ DEFAULTS = {
         "exact_max_n": 10,
         # "default" (split/merge + Gibbs), "paper" (split/merge only), "guided" (for many detections: data-driven
         # moves, the odometry surrogate in delayed acceptance's first stage, a cheap warm-up per chain of "mcmc";
-        # docs/model.md §3.4), or "auto": "guided" from ptm_bench.evaluation.cell.GUIDED_FROM_N detections on
-        # with odometry, else "default" (the row's inference_moves says which)
+        # docs/model.md §3.4), or "auto": "guided" from ptm_bench.evaluation.cell.GUIDED_FROM_N detections on,
+        # else "default" (the row's inference_moves says which)
         "moves": "auto",
         "temperatures": [1.0, 0.5, 0.25, 0.12, 0.06, 0.03],  # inverse temperatures of method "tempered"
     },
