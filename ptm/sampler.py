@@ -53,6 +53,8 @@ __all__ = ["mcmc", "default_moves", "guided_moves", "guided_options", "warm_up_s
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 #: Warm-up steps per detection of :func:`guided_options` (:func:`warm_up_start`).
 WARM_UP_PER_DETECTION = 100
+#: The warm-up's cheap phase starts at this inverse temperature and anneals to 1 (:func:`warm_up_start`).
+WARM_UP_FIRST_BETA = 0.05
 
 
 def default_moves():
@@ -360,7 +362,10 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
     mode and its estimate rough (docs/model.md §3.4).
 
     The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance;
-    guided split-merge and Gibbs reassignment, half and half); the last half, with an
+    guided split-merge and Gibbs reassignment, half and half), raised to an inverse temperature that rises
+    geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their first half (:func:`_annealed`): at 1 from the
+    start, a chain started with all detections at one place stays there when appearance alone cannot pull a
+    single detection out of the crowd (a 57-detection grid: 234 nats below the truth). The last half, with an
     :class:`ptm.surrogate.OdometrySurrogate`, adds its approximate odometry term (Laplace value and
     expected penalty, :meth:`~ptm.surrogate.OdometrySurrogate.approximate_log_likelihood`), with the guided
     moves and the surrogate screening delayed acceptance. Each approximate value costs a Laplace fit.
@@ -369,8 +374,8 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
     cheap = _WarmUpTarget(posterior)
     mixture = MoveMixture([(GuidedSplitMerge(posterior), 0.5), (GibbsReassign(), 0.5)])
     state = initial_state(cheap, labels)
-    for _ in range(cheap_steps):
-        state, _ = mixture.step(cheap, state, rng)
+    for step in range(cheap_steps):
+        state, _ = mixture.step(cheap, state, rng, inverse_temperature=_annealed(step, cheap_steps))
     if surrogate is not None and steps > cheap_steps:
         approximate = _WarmUpTarget(posterior, surrogate.approximate_log_likelihood)
         mixture = MoveMixture(guided_moves(posterior, surrogate))
@@ -378,6 +383,13 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
         for _ in range(steps - cheap_steps):
             state, _ = mixture.step(approximate, state, rng, delayed_acceptance=surrogate)
     return state.partition.labels
+
+
+def _annealed(step: int, steps: int) -> float:
+    """Inverse temperature of warm-up step ``step`` of ``steps``: geometric from ``WARM_UP_FIRST_BETA`` to 1
+    over the first half, then 1."""
+    progress = min(1.0, 2.0 * step / steps)
+    return WARM_UP_FIRST_BETA ** (1.0 - progress)
 
 
 class _WarmUpTarget:
