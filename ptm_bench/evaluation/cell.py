@@ -224,7 +224,7 @@ def disagreement(diagnostics: dict) -> str:
     a result without several chains (the exact posterior, one chain) gives "".
 
         >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4})
-        'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.4 (<= 0.05); the PTM is not converged: sample longer, or set inference.moves = "guided"'
+        'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.4 (<= 0.05); the PTM is not converged: sample longer (inference.n_samples), or try inference.method = "tempered"'
     """
     reached = {name: diagnostics.get(name) for name in ("rhat_log_prob", "rhat_num_places", "coassignment_max_difference")}
     if any(value is None for value in reached.values()):
@@ -235,7 +235,7 @@ def disagreement(diagnostics: dict) -> str:
     return (f"independent chains disagree: split R-hat of log P {reached['rhat_log_prob']:.3g} (want <= {AGREEMENT_RHAT}), "
             f"of the number of places {reached['rhat_num_places']:.3g} (<= {AGREEMENT_RHAT}), largest co-assignment "
             f"difference {reached['coassignment_max_difference']:.3g} (<= {AGREEMENT_COASSIGNMENT}); the PTM is not "
-            'converged: sample longer, or set inference.moves = "guided"')
+            'converged: sample longer (inference.n_samples), or try inference.method = "tempered"')
 
 
 def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
