@@ -1,16 +1,28 @@
-"""The ``scale`` section of ``ptm-bench speed``: the online mapper's latency per detection (docs/model.md §3.8).
+"""The ``scale`` section of ``ptm-bench speed``: batch sampling's time to agreement against N, and the online
+mapper's latency per detection (docs/model.md §3.4, §3.8).
 
-One run of a generated corridor grid (10 x 10 nodes, 4 extra loops, 60 % of the nodes places, world and
+*Time to agreement.* Generated corridor grids of 5 x 5 and 8 x 8 nodes (world and run seed 0, aliasing 0,
+noise 1; about 30 and 60 detections), odometry + appearance calibrated on held-out runs exactly as a sweep
+cell is (:func:`ptm_bench.evaluation.cell.build_posterior`), sampled with the harness's default sampler
+(four chains, ``inference.moves = "auto"``) at 2 500, 5 000, 10 000 and 20 000 samples per chain until the
+chains agree by the sweep's rule (:func:`ptm_bench.evaluation.cell.disagreement`). Rows, n = the run's
+detections: ``agreement_samples_per_chain`` (NaN when 20 000 did not agree), ``agreement_wall_s`` (the wall
+time of that run, or of the 20 000-sample one), ``agreement_rhat_log_prob`` and
+``agreement_coassignment_max_difference`` reached, ``agreement_map_ari``, and
+``odometry_evaluations_per_s`` (one over the mean time of a cache-missing evaluation of the odometry term
+in that run).
+
+*Online mapper.* One run of a generated corridor grid (10 x 10 nodes, 4 extra loops, 60 % of the nodes places, world and
 run seed 0: 116 detections) at aliasing 0 and odometry noise 1, replayed detection by detection
 through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The parameters are
 calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out run of a
 5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an
 online run does not know its own mean signature before it ends), the penalty radius from the held-out
 places, the tie from the detector's radius, and the prior rate, given to the mapper as a function of n,
-from the held-out places per detection. ``--scale`` shrinks the grid's side by sqrt(scale) (n is in the
+from the held-out places per detection. ``--scale`` scales every grid's side by sqrt(scale) (n is in the
 rows).
 
-Rows (``section, metric, n, value, unit``), n = the run's detections:
+Its rows (``section, metric, n, value, unit``), n = the run's detections:
 
 * ``online_latency_median_s``, ``online_latency_p90_s``, ``online_latency_max_s`` -- wall seconds of one
   ``OnlineMapper.add``, over the run's detections;
@@ -18,17 +30,23 @@ Rows (``section, metric, n, value, unit``), n = the run's detections:
 * ``online_map_ari`` -- adjusted Rand index of the final MAP against the truth; ``online_resamplings``.
 
     $ ptm-bench speed --section scale
-    $ ptm-bench speed --section scale --scale 0.1   # a 3 x 3 grid: quick, for checking the section runs
+    $ ptm-bench speed --section scale --scale 0.1   # 3 x 3 grids: quick, for checking the section runs
 """
 
 from __future__ import annotations
 
 import math
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 
 import ptm
 
+from ptm_bench.evaluation.cell import build_posterior, disagreement, resolved_moves, sampler_options
+from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
 from ptm_bench.evaluation.online import calibrated_mapper, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 from ptm_bench.simulation.generate import generate_dataset
@@ -39,6 +57,8 @@ __all__ = ["scale_rows"]
 GRID_SIDE = 10
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
+AGREEMENT_SIDES = (5, 8)
+AGREEMENT_SAMPLES = (2_500, 5_000, 10_000, 20_000)
 
 
 def _grid_run(side: int, seed: int) -> ptm.Dataset:
@@ -54,6 +74,46 @@ def _dataset_and_mapper(side: int = GRID_SIDE, seed: int = 0) -> tuple[ptm.Datas
 
 
 def scale_rows(args) -> list[dict]:
+    sides = sorted({max(3, round(side * math.sqrt(args.scale))) for side in AGREEMENT_SIDES})
+    return [row for side in sides for row in _agreement_rows(side)] + _online_rows(args)
+
+
+def _agreement_rows(side: int) -> list[dict]:
+    """Time to agreement of the default sampler on one grid run, calibrated as a sweep cell."""
+    config = {"name": "speed_scale",
+              "sweep": {"worlds": [{"generator": "corridor_grid", "name": f"grid{side}x{side}", "rows": side,
+                                    "cols": side, "loops": min(4, (side - 1) ** 2), "place_density": 0.6}],
+                        "seeds": [0], "calibration_seeds": [HELD_OUT_SEED]},
+              "variants": [{"name": "odometry+appearance", "models": ["odometry", "appearance"]}]}
+    with tempfile.TemporaryDirectory() as folder:
+        (cell,) = expand_cells(parse_experiment(config), Path(folder))
+        inputs, settings = cell["inputs"], cell["settings"]
+        dataset = dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
+                              inputs["generator_options"], inputs["cache_dir"], settings["appearance"]["components"])
+        inference = settings["inference"]
+        for samples in AGREEMENT_SAMPLES:
+            posterior, _ = build_posterior(cell, dataset)  # a fresh memo for each length: times are comparable
+            options = sampler_options(resolved_moves(inference["moves"], posterior.n), inference, posterior)
+            started = time.perf_counter()
+            result = ptm.mcmc(posterior, samples, burn_in=samples // 10, chains=inference["chains"], seed=0, **options)
+            wall = time.perf_counter() - started
+            agreed = disagreement(result.diagnostics) == ""
+            if agreed:
+                break
+    odometry = posterior.diagnostics()["odometry"]
+    values = [
+        ("agreement_samples_per_chain", float(samples) if agreed else math.nan, "samples"),
+        ("agreement_wall_s", wall, "s"),
+        ("agreement_rhat_log_prob", result.diagnostics["rhat_log_prob"], "R-hat"),
+        ("agreement_coassignment_max_difference", result.diagnostics["coassignment_max_difference"], "max abs"),
+        ("agreement_map_ari", adjusted_rand_index(result.map(), dataset.labels), "ARI"),
+        ("odometry_evaluations_per_s", 1e3 / odometry["evaluation_ms_mean"], "1/s"),
+    ]
+    return [{"section": "scale", "metric": metric, "n": dataset.n, "value": value, "unit": unit}
+            for metric, value, unit in values]
+
+
+def _online_rows(args) -> list[dict]:
     side = max(3, round(GRID_SIDE * math.sqrt(args.scale)))
     dataset, mapper = _dataset_and_mapper(side)
     result = replay(dataset, mapper)
