@@ -4,10 +4,10 @@ mapper's latency per detection (docs/model.md §3.4, §3.8).
 *Time to agreement.* Generated corridor grids of 5 x 5 and 8 x 8 nodes (world and run seed 0, aliasing 0,
 noise 1; about 30 and 60 detections), odometry + appearance calibrated on held-out runs exactly as a sweep
 cell is (:func:`ptm_bench.evaluation.cell.build_posterior`), sampled with the harness's default sampler
-(four chains, ``inference.moves = "auto"``) at 2 500, 5 000, 10 000 and 20 000 samples per chain until the
-chains agree by the sweep's rule (:func:`ptm_bench.evaluation.cell.disagreement`). Rows, n = the run's
-detections: ``agreement_samples_per_chain`` (NaN when 20 000 did not agree), ``agreement_wall_s`` (the wall
-time of that run, or of the 20 000-sample one), ``agreement_rhat_log_prob`` and
+(four chains, ``inference.moves = "auto"``) at 2 500, 5 000, ... 40 000 samples per chain (twice the
+default, 20 000) until the chains agree by the sweep's rule (:func:`ptm_bench.evaluation.cell.disagreement`).
+Rows, n = the run's detections: ``agreement_samples_per_chain`` (NaN when 40 000 did not agree),
+``agreement_wall_s`` (the wall time of that run, or of the 40 000-sample one), ``agreement_rhat_log_prob`` and
 ``agreement_coassignment_max_difference`` reached, ``agreement_map_ari``, and
 ``odometry_evaluations_per_s`` (one over the mean time of a cache-missing evaluation of the odometry term
 in that run).
@@ -58,7 +58,7 @@ GRID_SIDE = 10
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
 AGREEMENT_SIDES = (5, 8)
-AGREEMENT_SAMPLES = (2_500, 5_000, 10_000, 20_000)
+AGREEMENT_SAMPLES = (2_500, 5_000, 10_000, 20_000, 40_000)
 
 
 def _grid_run(side: int, seed: int) -> ptm.Dataset:
