@@ -30,3 +30,14 @@ def scored_cell(cell: dict) -> dict:
 
     answer = (0, 1, 0) if cell["seed"] % 2 == 0 else (0, 1, 1)
     return {**scoring.score(scoring.point_mass(answer), (0, 1, 0)), "wall_s": 0.0}
+
+
+def semaphore_cell(cell: dict) -> dict:
+    """What a real cell does to the process's semaphores: the scoring imports scikit-learn (whose joblib
+    names the semaphores it creates), and a tqdm bar, even disabled, creates its lock, a named semaphore the
+    process must unlink as it ends."""
+    import sklearn.metrics  # noqa: F401
+    from tqdm import tqdm
+
+    with tqdm(total=1, disable=True):
+        return {"locked": True}

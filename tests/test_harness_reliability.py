@@ -177,6 +177,30 @@ def test_a_sigkilled_sweep_takes_its_workers_along_and_a_rerun_resumes(tmp_path)
     assert (table["status"] == "ok").all() and table.loc[0, "slept"] == 0
 
 
+SEMAPHORE_SWEEP = """
+import sys
+sys.path.insert(0, {tests!r})
+from ptm_bench.evaluation import sweep
+from sweep_fakes import semaphore_cell
+if __name__ == "__main__":
+    cells = [{{"cell_id": str(i), "experiment": "t", "seed": i}} for i in range(16)]
+    sweep.run_sweep(cells, semaphore_cell, {folder!r} + "/cells.csv", workers=2, progress=False)
+"""
+
+
+def test_cell_processes_end_normally_and_leave_no_semaphores_behind(tmp_path):
+    """A cell process ends through the interpreter's shutdown, never cut short by its watch of the pipe once
+    the sweep has read its outcome. Before the fix the resource tracker warned of leaked semaphores after
+    3 of 6 runs of the demo, and after 4 of 4 runs of this test."""
+    script = tmp_path / "sweep.py"
+    script.write_text(SEMAPHORE_SWEEP.format(tests=str(TESTS), folder=str(tmp_path)))
+    finished = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=120)
+    assert finished.returncode == 0, finished.stderr
+    assert "leaked semaphore" not in finished.stderr
+    assert (sweep.read_table(tmp_path / "cells.csv")["status"] == "ok").all()
+
+
 RUN_WITH_FAKE_CELLS = """
 import sys
 sys.path.insert(0, {tests!r})

@@ -318,13 +318,18 @@ def _guarded(cell_fn: CellFn, cell: dict) -> dict:
 
 
 def _child(cell_fn: CellFn, cell: dict, connection) -> None:
-    _die_with_sweep(connection)
-    connection.send(_guarded(cell_fn, cell))
+    finishing = _die_with_sweep(connection)
+    outcome = _guarded(cell_fn, cell)
+    # From here on the pipe closes by design (the sweep closes its end once it has read the outcome, this
+    # process closes its own): the watch must not end the process. Were the sweep gone, send would raise.
+    finishing.set()
+    connection.send(outcome)
     connection.close()
 
 
-def _die_with_sweep(connection) -> None:
-    """Make this cell process end with the sweep's process, and leave Ctrl-C to the sweep.
+def _die_with_sweep(connection) -> threading.Event:
+    """Make this cell process end with the sweep's process, and leave Ctrl-C to the sweep; returns the event
+    to set once the cell's outcome is ready to send.
 
     The sweep holds the only read end of ``connection``'s pipe; when its
     process ends, also by SIGKILL, the pipe loses its reader and ``poll``
@@ -332,20 +337,27 @@ def _die_with_sweep(connection) -> None:
     the process, so no orphan runs on to die on a broken pipe. (The parent
     process of a cell is the fork server, which outlives it, so a parent-death
     signal would not fire.) SIGINT reaches the whole process group on Ctrl-C;
-    the sweep ends its workers itself, so a worker ignores it.
+    the sweep ends its workers itself, so a worker ignores it. Once the event is
+    set, a closed pipe (the sweep has read the outcome, or this process closed
+    its end) ends the watch instead: an ``os._exit`` then would cut the
+    interpreter's shutdown short, before it unlinks its semaphores, and the
+    resource tracker would warn about them after the sweep.
     """
+    finishing = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if not hasattr(select, "poll"):
-        return
+        return finishing
     poller = select.poll()
     poller.register(connection.fileno(), 0)  # no events asked for: POLLERR / POLLHUP are always reported
 
     def watch() -> None:
         while not any(events & (select.POLLERR | select.POLLHUP | select.POLLNVAL) for _, events in poller.poll()):
             pass
-        os._exit(1)
+        if not finishing.is_set():
+            os._exit(1)
 
     threading.Thread(target=watch, name="watch-sweep", daemon=True).start()
+    return finishing
 
 
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
