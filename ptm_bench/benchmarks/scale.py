@@ -3,11 +3,11 @@ mapper's latency per detection (docs/model.md §3.4, §3.8).
 
 *Time to agreement.* Generated corridor grids of 5 x 5 and 8 x 8 nodes (world and run seed 0, aliasing 0,
 noise 1; about 30 and 60 detections), odometry + appearance calibrated on held-out runs exactly as a sweep
-cell is (:func:`ptm_bench.evaluation.cell.build_posterior`), sampled with the harness's default sampler
+cell is (:func:`ptm_bench.evaluation.cell.run_cell`), sampled with the harness's default sampler
 (four chains, ``inference.moves = "auto"``) at 2 500, 5 000, ... 40 000 samples per chain (twice the
 default, 20 000) until the chains agree by the sweep's rule (:func:`ptm_bench.evaluation.cell.disagreement`).
 Rows, n = the run's detections: ``agreement_samples_per_chain`` (NaN when 40 000 did not agree),
-``agreement_wall_s`` (the wall time of that run, or of the 40 000-sample one), ``agreement_rhat_log_prob`` and
+``agreement_wall_s`` (the sampler's wall time in that run, or in the 40 000-sample one), ``agreement_rhat_log_prob`` and
 ``agreement_coassignment_max_difference`` reached, ``agreement_map_ari``, and
 ``odometry_evaluations_per_s`` (one over the mean time of a cache-missing evaluation of the odometry term
 in that run).
@@ -37,15 +37,13 @@ from __future__ import annotations
 
 import math
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 import ptm
 
-from ptm_bench.evaluation.cell import build_posterior, disagreement, resolved_moves, sampler_options
-from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
 from ptm_bench.evaluation.online import calibrated_mapper, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
@@ -79,7 +77,8 @@ def scale_rows(args) -> list[dict]:
 
 
 def _agreement_rows(side: int) -> list[dict]:
-    """Time to agreement of the default sampler on one grid run, calibrated as a sweep cell."""
+    """Time to agreement of the default sampler on one grid run: the run's sweep cell, at longer and longer
+    chains (``n_samples``, with the default's burn-in of a tenth)."""
     config = {"name": "speed_scale",
               "sweep": {"worlds": [{"generator": "corridor_grid", "name": f"grid{side}x{side}", "rows": side,
                                     "cols": side, "loops": min(4, (side - 1) ** 2), "place_density": 0.6}],
@@ -87,29 +86,20 @@ def _agreement_rows(side: int) -> list[dict]:
               "variants": [{"name": "odometry+appearance", "models": ["odometry", "appearance"]}]}
     with tempfile.TemporaryDirectory() as folder:
         (cell,) = expand_cells(parse_experiment(config), Path(folder))
-        inputs, settings = cell["inputs"], cell["settings"]
-        dataset = dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
-                              inputs["generator_options"], inputs["cache_dir"], settings["appearance"]["components"])
-        inference = settings["inference"]
         for samples in AGREEMENT_SAMPLES:
-            posterior, _ = build_posterior(cell, dataset)  # a fresh memo for each length: times are comparable
-            options = sampler_options(resolved_moves(inference["moves"], posterior.n), inference, posterior)
-            started = time.perf_counter()
-            result = ptm.mcmc(posterior, samples, burn_in=samples // 10, chains=inference["chains"], seed=0, **options)
-            wall = time.perf_counter() - started
-            agreed = disagreement(result.diagnostics) == ""
-            if agreed:
+            cell["settings"]["inference"].update(n_samples=samples, burn_in=samples // 10)
+            row = run_cell(cell)  # the run and its held-out runs are generated once, then read from the cache
+            if not row["warning"]:
                 break
-    odometry = posterior.diagnostics()["odometry"]
     values = [
-        ("agreement_samples_per_chain", float(samples) if agreed else math.nan, "samples"),
-        ("agreement_wall_s", wall, "s"),
-        ("agreement_rhat_log_prob", result.diagnostics["rhat_log_prob"], "R-hat"),
-        ("agreement_coassignment_max_difference", result.diagnostics["coassignment_max_difference"], "max abs"),
-        ("agreement_map_ari", adjusted_rand_index(result.map(), dataset.labels), "ARI"),
-        ("odometry_evaluations_per_s", 1e3 / odometry["evaluation_ms_mean"], "1/s"),
+        ("agreement_samples_per_chain", math.nan if row["warning"] else float(samples), "samples"),
+        ("agreement_wall_s", row["diag_wall_s"], "s"),
+        ("agreement_rhat_log_prob", row["diag_rhat_log_prob"], "R-hat"),
+        ("agreement_coassignment_max_difference", row["diag_coassignment_max_difference"], "max abs"),
+        ("agreement_map_ari", row["ari"], "ARI"),
+        ("odometry_evaluations_per_s", 1e3 / row["diag_odometry_evaluation_ms_mean"], "1/s"),
     ]
-    return [{"section": "scale", "metric": metric, "n": dataset.n, "value": value, "unit": unit}
+    return [{"section": "scale", "metric": metric, "n": row["n_measurements"], "value": value, "unit": unit}
             for metric, value, unit in values]
 
 

@@ -53,8 +53,8 @@ from ptm_bench.evaluation.calibration import (
 )
 from ptm_bench.evaluation.datacache import dataset_for
 
-__all__ = ["CELL_VERSION", "GUIDED_FROM_N", "INFERENCE_KEY", "run_cell", "build_posterior", "disagreement", "resolved_moves",
-           "sampler_options"]
+__all__ = ["CELL_VERSION", "GUIDED_FROM_N", "INFERENCE_KEY", "run_cell", "build_posterior", "disagreement",
+           "resolved_moves"]
 
 #: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
 #: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
@@ -171,10 +171,10 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     if method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], **sampler_options(moves, inference, posterior))
+                                   chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
-                          seed=sampler_seed, chains=inference["chains"], **sampler_options(moves, inference, posterior))
+                          seed=sampler_seed, chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
@@ -208,7 +208,7 @@ def resolved_moves(moves: str, n: int) -> str:
     return "guided" if n >= GUIDED_FROM_N else "default"
 
 
-def sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
+def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
     """The sampler's moves and delayed acceptance for a resolved move set (:func:`resolved_moves`), with the
     warm-up of ``"guided"`` (docs/model.md §3.4)."""
     if moves == "guided":
