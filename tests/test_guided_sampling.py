@@ -33,7 +33,7 @@ from helpers import appearance_posterior
 from ptm.moves import GuidedSplitMerge, MapReassign, Proposal, initial_state
 from ptm.sampler import guided_moves, second_stage_log_ratio
 from ptm.surrogate import OdometrySurrogate
-from ptm_bench.evaluation.cell import GUIDED_FROM_N, resolved_moves
+from ptm_bench.evaluation.cell import GUIDED_FROM_N, resolved_burn_in, resolved_moves
 from test_odometry import mixed_target, square_loop_dataset
 from test_sampler import TOLERANCE
 from test_sampler_exactness import WithoutProposalRatio, total_variation_to_exact
@@ -210,6 +210,13 @@ def test_coassignment_difference_between_chains_by_hand():
 def test_auto_moves_are_guided_from_many_detections(n, expected):
     assert resolved_moves("auto", n) == expected
     assert resolved_moves("paper", n) == "paper"  # a named move set is kept
+
+
+def test_default_burn_in_is_half_the_chain_and_a_set_one_is_kept():
+    assert resolved_burn_in({"n_samples": 20000, "burn_in": None}) == 10000
+    assert resolved_burn_in({"n_samples": 20001, "burn_in": None}) == 10000
+    assert resolved_burn_in({"n_samples": 20000, "burn_in": 0}) == 0
+    assert resolved_burn_in({"n_samples": 20000, "burn_in": 2000}) == 2000
 
 
 def _many_places_posterior(places: int = 30, visits: int = 2, spread: float = 0.03, noise: float = 0.005):

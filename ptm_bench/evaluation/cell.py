@@ -162,6 +162,7 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     sampler_seed, _ = _inference_seeds(cell["seed"])
     method = inference["method"]
     moves = resolved_moves(inference["moves"], posterior.n)
+    burn_in = resolved_burn_in(inference)
     result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
         result = _affordable_exact_posterior(posterior, inference)
@@ -170,15 +171,16 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
         result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
     if method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
-                                   burn_in=inference["burn_in"], thin=inference["thin"], seed=sampler_seed,
+                                   burn_in=burn_in, thin=inference["thin"], seed=sampler_seed,
                                    chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     elif method == "mcmc":
-        result = ptm.mcmc(posterior, inference["n_samples"], burn_in=inference["burn_in"], thin=inference["thin"],
+        result = ptm.mcmc(posterior, inference["n_samples"], burn_in=burn_in, thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], **_sampler_options(moves, inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
     row["inference_moves"] = moves if method in ("mcmc", "tempered") else ""
+    row["inference_burn_in"] = burn_in if method in ("mcmc", "tempered") else ""
     row["warning"] = disagreement(result.diagnostics)
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
@@ -206,6 +208,11 @@ def resolved_moves(moves: str, n: int) -> str:
     if moves != "auto":
         return moves
     return "guided" if n >= GUIDED_FROM_N else "default"
+
+
+def resolved_burn_in(inference: dict) -> int:
+    """The steps each chain discards first: ``inference.burn_in``, or half of ``n_samples`` when unset."""
+    return inference["n_samples"] // 2 if inference["burn_in"] is None else inference["burn_in"]
 
 
 def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:

@@ -74,7 +74,9 @@ DEFAULTS = {
     "inference": {
         "method": "mcmc",
         "n_samples": 20000,
-        "burn_in": 2000,
+        # None: half of n_samples. At 80-100 detections chains found the bulk only after 2 000-10 000 steps
+        # (results/scale, README "Scale"), so the default discards the first half of every chain.
+        "burn_in": None,
         "thin": 1,
         "chains": 4,  # independent chains of "mcmc", independent ladders of "tempered"
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
