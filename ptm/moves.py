@@ -22,6 +22,12 @@ sampler re-scores only what changed.
   partner drawn in proportion to the pair's Bayes factor exp(a_ij), a split
   anchor in proportion to exp(-a_ij) among its set; the Hastings ratio
   includes both anchor probabilities.
+* :class:`TrailingReallocation` — block sampling (Doucet, Briers & Senecal
+  2006) for the online mapper: the last ``window`` detections leave their
+  sets and are allocated again one by one, in order, each to a set or a new
+  one in proportion to the cheap terms; the reverse probability replays the
+  allocation of T, which leaves the same sets behind. It realigns a retraced
+  corridor that a run of single moves cannot (each step alone is worse).
 
     >>> import math
     >>> from ptm import Dataset, PoissonPrior, Posterior
@@ -41,10 +47,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._validation import count
 from .partitions import Block, Partition, log_stirling2_two
 
 __all__ = [
     "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "MapReassign", "SequentialSplitMerge", "GuidedSplitMerge",
+    "TrailingReallocation",
     "merge_log_q_ratio", "split_log_q_ratio", "initial_state", "apply_proposal",
 ]
 
@@ -410,6 +418,74 @@ class GuidedSplitMerge:
         weights = np.exp(log_weights - log_weights.max())
         return ((1.0 - self.exploration) * weights / weights.sum()
                 + self.exploration * candidates / np.count_nonzero(candidates))
+
+
+class TrailingReallocation:
+    """Allocate the last ``window`` detections again, jointly (block sampling for :class:`ptm.OnlineMapper`).
+
+    The window W is fixed by N alone, so the sets the other detections form,
+    T0 (T without W), are the same before and after the move. The members of W
+    join, in index order, one of the sets so far (those of T0 and the ones
+    earlier members of W opened) with weight exp(s(B + i) - s(B)), or a new
+    one with weight exp(s({i}) + log P_prior(N, k + 1) - log P_prior(N, k)),
+    k >= 1 the number of sets so far (with none, a new set is the only option). log q(T -> T') is the sum of the chosen
+    options' log probabilities; log q(T' -> T) replays T's own allocation from
+    the same T0. Proposing T again is ``None``.
+    """
+
+    name = "trailing_reallocation"
+
+    def __init__(self, window: int = 8):
+        self.window = count("window", window, minimum=1)
+
+    def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
+        n = posterior.n
+        if n == 1:
+            return None
+        window = range(max(0, n - self.window), n)
+        labels = state.partition.labels
+        kept = [tuple(member for member in block if member < window.start) for block in state.blocks]
+        left_behind = tuple(block for block in kept if block)
+        old_home = {detection: labels[detection] for detection in window}
+        forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window)
+        _, log_q_reverse = _allocate_in_order(rng, posterior, left_behind, window,
+                                              old=(state.blocks, old_home))
+        before = set(state.blocks)
+        added = tuple(sorted(block for block in forward if block not in before))
+        if not added:
+            return None
+        after = set(forward)
+        removed = tuple(index for index, block in enumerate(state.blocks) if block not in after)
+        return Proposal(removed, added, log_q_reverse - log_q_forward)
+
+
+def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
+    """The sets after ``detections`` join ``left_behind`` one by one (:class:`TrailingReallocation`), and the
+    log probability of that allocation; with ``old`` = (the blocks of T, each detection's block index in T),
+    replay T's allocation instead of drawing one."""
+    score, log_prior = posterior.block_score, posterior.log_prior_by_size
+    sets = list(left_behind)
+    home_of = {member: position for position, block in enumerate(sets) for member in block}
+    log_q = 0.0
+    for detection in detections:
+        weights = [score(_with_member(block, detection)) - score(block) for block in sets]
+        opening = log_prior[len(sets) + 1] - log_prior[len(sets)] if sets else 0.0  # the first set: no choice
+        weights.append(score((detection,)) + opening)
+        log_weights = np.asarray(weights)
+        log_norm = float(np.logaddexp.reduce(log_weights))
+        if old is None:
+            pick = _draw(rng, log_weights)
+        else:
+            blocks, home = old
+            placed = [member for member in blocks[home[detection]] if member in home_of]
+            pick = home_of[placed[0]] if placed else len(sets)
+        log_q += weights[pick] - log_norm
+        if pick == len(sets):
+            sets.append((detection,))
+        else:
+            sets[pick] = _with_member(sets[pick], detection)
+        home_of[detection] = pick
+    return tuple(sorted(sets)), log_q
 
 
 def _split_or_merge(rng, state: ChainState, score, first: int, second: int) -> Proposal:

@@ -24,10 +24,16 @@ detection n + 1 arrives (0-based index n):
 2. *Resampling.* With normalised weights W^p, the effective sample size ESS = 1 / sum_p (W^p)^2; below
    ``resample_below`` x P the particles are resampled systematically (one uniform u, the p-th copy at
    (u + p) / P of the cumulative weights) and the weights reset to equal.
-3. *Rejuvenation.* Each particle takes ``rejuvenation_steps`` Metropolis-Hastings steps of the default
-   moves (:func:`ptm.sampler.default_moves`) targeting pi_{n+1}, screened by the surrogate in delayed
-   acceptance when there are global terms (:func:`ptm.sampler.metropolis_step`): invariant for pi_{n+1},
-   so the weights stand, and copies of one particle spread out again.
+3. *Rejuvenation.* Each particle takes one block move over the last ``reallocation_window`` detections
+   (:class:`ptm.moves.TrailingReallocation`: they are allocated again jointly, in order) and then
+   ``rejuvenation_steps`` Metropolis-Hastings steps of the default moves (:func:`ptm.sampler.default_moves`),
+   all targeting pi_{n+1}, screened by the surrogate in delayed acceptance when there are global terms
+   (:func:`ptm.sampler.metropolis_step`): invariant for pi_{n+1}, so the weights stand, and copies of one
+   particle spread out again. The block move is what lets the particles change their mind about a
+   retraced corridor: when a run of detections was aligned with the places one step off (each alone
+   better there until the next detections arrive), no single move leads back, as each step alone loses
+   probability (measured on a 95-detection grid: 24 nats below the truth after two more detections,
+   every particle).
 
 The prior follows n in one of two ways. A prior object (``log_prob(n, m)``) is used at every n: with a
 :class:`ptm.PoissonPrior` the rate counts the world's landmarks, visited or not, a number that does not
@@ -56,7 +62,7 @@ from scipy.special import logsumexp
 
 from ._validation import count, finite_array
 from .dataset import Dataset
-from .moves import initial_state
+from .moves import TrailingReallocation, initial_state
 from .partitions import Partition
 from .posterior import Posterior
 from .result import PTM
@@ -86,13 +92,15 @@ class OnlineMapper:
         before the draw (0: all of them, the locally optimal proposal).
     seed : int, SeedSequence or None
         Seed of the one random generator; the same seed and data give the same PTMs.
+    reallocation_window : int
+        Detections the block move of each rejuvenation allocates again (0: no block move).
 
     After each :meth:`add`, ``posterior`` is the :class:`ptm.Posterior` of the detections so far and
     :meth:`result` the particles' PTM.
     """
 
     def __init__(self, prior, models, particles: int = 128, rejuvenation_steps: int = 2,
-                 resample_below: float = 0.5, screen: float = 1e-3, seed=None):
+                 resample_below: float = 0.5, screen: float = 1e-3, seed=None, reallocation_window: int = 8):
         if hasattr(prior, "log_prob"):
             self._prior_of = lambda n: prior
         elif callable(prior):
@@ -106,6 +114,7 @@ class OnlineMapper:
                                  "so far (model.bind(dataset)), so it needs unbound models")
         self.particles = count("particles", particles, minimum=1)
         self.rejuvenation_steps = count("rejuvenation_steps", rejuvenation_steps, minimum=0)
+        self.reallocation_window = count("reallocation_window", reallocation_window, minimum=0)
         self.resample_below = _share("resample_below", resample_below)
         self.screen = _share("screen", screen)
         self._rng = np.random.default_rng(seed)
@@ -202,10 +211,15 @@ class OnlineMapper:
 
     def _rejuvenated(self, posterior, states, surrogate):
         """Each particle after ``rejuvenation_steps`` MH steps invariant for ``posterior`` (step 3)."""
+        screening = False if surrogate is None else surrogate
+        if self.reallocation_window:
+            block = MoveMixture([TrailingReallocation(self.reallocation_window)])
+            states = [block.step(posterior, state, self._rng, delayed_acceptance=screening)[0] for state in states]
+            self._proposed += int(block.proposed.sum())
+            self._accepted += int(block.accepted.sum())
         if self.rejuvenation_steps == 0:
             return states
         mixture = MoveMixture(default_moves())
-        screening = False if surrogate is None else surrogate
         moved = []
         for state in states:
             for _ in range(self.rejuvenation_steps):

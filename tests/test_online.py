@@ -227,6 +227,7 @@ def test_odometry_that_starts_late_is_refused():
     ({"rejuvenation_steps": -1}, "rejuvenation_steps must be an integer >= 0"),
     ({"resample_below": 1.5}, r"resample_below must be a number in \[0, 1\]"),
     ({"screen": "often"}, r"screen must be a number in \[0, 1\]"),
+    ({"reallocation_window": 2.5}, "reallocation_window must be an integer >= 0"),
 ])
 def test_bad_settings_are_refused_by_name(options, message):
     with pytest.raises(ValueError, match=message):
