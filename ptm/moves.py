@@ -428,9 +428,10 @@ class TrailingReallocation:
     join, in index order, one of the sets so far (those of T0 and the ones
     earlier members of W opened) with weight exp(s(B + i) - s(B)), or a new
     one with weight exp(s({i}) + log P_prior(N, k + 1) - log P_prior(N, k)),
-    k >= 1 the number of sets so far (with none, a new set is the only option). log q(T -> T') is the sum of the chosen
-    options' log probabilities; log q(T' -> T) replays T's own allocation from
-    the same T0. Proposing T again is ``None``.
+    k >= 1 the number of sets so far (with none, a new set is the only
+    option). log q(T -> T') is the sum of the chosen options' log
+    probabilities; log q(T' -> T) replays T's own allocation from the same T0.
+    Proposing T again is ``None``.
     """
 
     name = "trailing_reallocation"

@@ -210,7 +210,8 @@ class OnlineMapper:
         return states, log_weights
 
     def _rejuvenated(self, posterior, states, surrogate):
-        """Each particle after ``rejuvenation_steps`` MH steps invariant for ``posterior`` (step 3)."""
+        """Each particle after the block move and ``rejuvenation_steps`` MH steps, all invariant for
+        ``posterior`` (step 3)."""
         screening = False if surrogate is None else surrogate
         if self.reallocation_window:
             block = MoveMixture([TrailingReallocation(self.reallocation_window)])
