@@ -7,7 +7,8 @@ its own decor, so a good model should rarely be fooled):
 * **revisit pairs favouring "split"**: the share of pairs of detections of one
   place whose Bayes factor log p({i, j}) - log p({i}) - log p({j}) is below 0;
 * **different-place pairs favouring "merge"**: the share of pairs of distinct
-  places whose Bayes factor is above 0;
+  places whose Bayes factor is above 0 (both shares with an exact binomial 95 %
+  interval: pairs are few, and the interval says whether a target is met);
 * **probability integral transform (PIT)** of each revisit under the
   posterior predictive given the other visits of its place, per signature
   component (uniform on [0, 1] when the model's predictive is calibrated; piled
@@ -39,7 +40,7 @@ import ptm
 from ptm_bench.evaluation.calibration import fitted_appearance
 from ptm_bench.evaluation.datacache import dataset_for
 
-__all__ = ["APPEARANCE_MODELS", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
+__all__ = ["APPEARANCE_MODELS", "CONFIDENCE", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
 
 #: The models checked: name -> (``appearance.model``, ``appearance.prior_mean``) of a sweep's config.
 APPEARANCE_MODELS = {
@@ -55,6 +56,7 @@ DEFAULT_WORLDS = {
 }
 PIT_BINS = 10
 EXTREME_P = 1e-3  # a two-sided predictive p-value below this is an "extreme" visit
+CONFIDENCE = 0.95  # of the intervals around the pair shares
 CALIBRATION_FIRST_SEED = 1000
 
 
@@ -115,9 +117,9 @@ def _check(fitted, datasets) -> tuple[dict, np.ndarray]:
     two_sided = 2 * np.minimum(pits, 1 - pits)
     row = {
         "revisit_pairs": same_factors.size,
-        "revisits_favouring_split": float(np.mean(same_factors < 0)) if same_factors.size else np.nan,
+        **_share("revisits_favouring_split", same_factors < 0),
         "different_pairs": different_factors.size,
-        "different_favouring_merge": float(np.mean(different_factors > 0)) if different_factors.size else np.nan,
+        **_share("different_favouring_merge", different_factors > 0),
         "held_out_visits": pits.shape[0],
         "extreme_share_max": float((two_sided < EXTREME_P).mean(axis=0).max()) if pits.size else np.nan,
     }
@@ -125,3 +127,17 @@ def _check(fitted, datasets) -> tuple[dict, np.ndarray]:
         row[f"extreme_share_{component}"] = float(np.mean(two_sided[:, component] < EXTREME_P))
         row[f"ks_p_{component}"] = float(stats.kstest(pits[:, component], "uniform").pvalue)
     return row, pits
+
+
+def _share(name: str, hits: np.ndarray) -> dict:
+    """The share of True in ``hits`` and its exact (Clopper-Pearson) 95 % interval, NaN when empty.
+
+    A pair share is a binomial proportion: 3 of 132 is 0.023, but the interval
+    is 0.005-0.065, so a run count that leaves the interval straddling a target
+    cannot say on which side of it the model lies. Pairs that share a detection
+    are not independent, so the interval is, if anything, too narrow.
+    """
+    if hits.size == 0:
+        return {name: np.nan, f"{name}_low": np.nan, f"{name}_high": np.nan}
+    interval = stats.binomtest(int(hits.sum()), hits.size).proportion_ci(CONFIDENCE, method="exact")
+    return {name: float(hits.mean()), f"{name}_low": float(interval.low), f"{name}_high": float(interval.high)}
