@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from ptm_bench.evaluation.calibration import calibration_datasets
 from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
+from ptm_bench.reporting.summary import write_summary
 
 ROOT = Path(__file__).resolve().parent.parent
 LOGS = {name: str(ROOT / "data" / "real_logs" / f"{name}.npz") for name in ("intel", "aces", "fhw", "acapulco")}
@@ -30,6 +32,11 @@ def test_calibration_defaults_to_the_other_recorded_worlds(tmp_path):
     assert [dataset.meta["world"] for dataset in held_out] == ["fhw", "intel"]
     row = run_cell(cell)
     assert row["n_pairs"] == 55 * 54 // 2 and "2 held-out runs" in row["source_threshold"]
+    table_row = {key: value for key, value in cell.items() if isinstance(value, (str, int, float))}
+    table = pd.DataFrame([{**table_row, **row, "status": "ok"}])
+    header = write_summary(experiment, table, tmp_path, figures=False).read_text()
+    assert "aces on fhw + intel; fhw on aces + intel; intel on aces + fhw" in header
+    assert "seeds [1000" not in header  # a recorded run is not calibrated on simulator seeds
 
 
 @pytest.mark.parametrize("worlds, message", [

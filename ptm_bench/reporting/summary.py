@@ -44,7 +44,7 @@ from ptm.dataset import atomic_write
 from ptm.se2 import dead_reckoning
 
 from ptm_bench.evaluation import scoring
-from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.datacache import dataset_for, is_recorded
 from ptm_bench.evaluation.experiment import Experiment, expand_cells
 from ptm_bench.reporting import plots
 
@@ -247,6 +247,22 @@ def _condition_columns(frame: pd.DataFrame) -> list[str]:
     return list(CONDITION)
 
 
+def _provenance(experiment: Experiment) -> str:
+    """Which seeds were scored and what the calibration came from, for simulated and for recorded worlds."""
+    recorded = [world for world in experiment.sweep["worlds"] if is_recorded(world)]
+    simulated = len(experiment.sweep["worlds"]) - len(recorded)
+    parts = []
+    if simulated:
+        parts.append(f"Scored seeds {experiment.sweep['seeds']}; held-out calibration seeds "
+                     f"{experiment.sweep['calibration_seeds']}.")
+    if recorded:
+        calibrations = "; ".join(f"{world['name']} on {' + '.join(Path(path).stem for path in world['calibration'])}"
+                                 for world in recorded)
+        parts.append(f"Recorded runs, each calibrated on other runs ({calibrations}); on a recorded run the seeds "
+                     f"{experiment.sweep['seeds']} are the inference's.")
+    return " ".join(parts)
+
+
 def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path, figures: bool = True) -> Path:
     """Write ``summary.md`` (and, with ``figures``, the PNG figures) into ``results_dir``.
 
@@ -263,8 +279,7 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         lines += [experiment.description, ""]
     lines += [
         f"{len(table)} cells: {len(table) - len(failed)} finished, {len(failed)} failed. "
-        f"Scored seeds {experiment.sweep['seeds']}; appearance calibrated on held-out seeds "
-        f"{experiment.sweep['calibration_seeds']}. Rows are means over seeds unless named otherwise; "
+        f"{_provenance(experiment)} Rows are means over seeds unless named otherwise; "
         "`gt_mass` is the posterior probability of the ground-truth topology, `gt_rank_median` its median rank "
         "(1 = most probable), `map_correct` the fraction of seeds whose MAP is the truth, `lc_*` loop-closure "
         "scores of the co-assignment matrix, `rhat_over_1.1` the fraction of seeds whose chains disagree "
