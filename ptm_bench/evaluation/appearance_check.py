@@ -21,7 +21,7 @@ paper's independent-component model (``ptm.AppearanceModel``) are checked on
 the same runs, each with the prior mean the harness uses by default (the
 scored run's own mean signature, ``appearance.prior_mean = "run"``) and with
 the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
-:func:`ptm_bench.evaluation.calibration.fitted_appearance`, as in a sweep. ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
+:func:`ptm_bench.evaluation.calibration.fitted_appearance`, as in a sweep (fitted once per world and model). ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
 ``summary.md`` and ``pit.png`` to its output folder.
 
     $ ptm-bench appearance-check --worlds office --runs 30 --calibration-runs 10
@@ -37,7 +37,7 @@ from scipy import stats
 
 import ptm
 
-from ptm_bench.evaluation.calibration import fitted_appearance
+from ptm_bench.evaluation.calibration import appearance_fitter
 from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["APPEARANCE_MODELS", "CONFIDENCE", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
@@ -82,11 +82,8 @@ def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, a
         for model_name, (model, prior_mean) in APPEARANCE_MODELS.items():
             started = time.perf_counter()
 
-            def fitted(dataset, model=model, prior_mean=prior_mean):
-                return fitted_appearance(calibration, model, prior_mean=prior_mean,
-                                         scored_signatures=dataset.signatures)[0]
-
-            row, pits = _check(fitted, scored)
+            fitter = appearance_fitter(calibration, model, prior_mean=prior_mean)
+            row, pits = _check(lambda dataset: fitter(dataset.signatures)[0], scored)
             rows.append({"world": world_name, "model": model_name, "runs": runs,
                          "calibration_runs": calibration_runs, "aliasing": aliasing, "noise": noise,
                          "aliasing_auc": float(np.nanmean([d.meta.get("aliasing_auc", np.nan) for d in scored])),

@@ -70,7 +70,7 @@ import ptm
 
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
-__all__ = ["APPEARANCE_HYPERPARAMETERS", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
+__all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
            "prior_rate", "topology_sigma"]
 
 CONFIG = "config"
@@ -110,17 +110,32 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
     (``scored_signatures``: all its detections, no labels). With ``"global"`` the spread between worlds
     counts as spread between places, and a run whose places all look alike is read as one place.
     """
+    if prior_mean == "run" and scored_signatures is None:
+        raise ValueError("appearance.prior_mean = 'run' needs the scored run's signatures")
+    return appearance_fitter(held_out, model, evidence, prior_mean)(scored_signatures)
+
+
+def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
+                      prior_mean: str = "global"):
+    """:func:`fitted_appearance` fitted once: a function from a scored run's signatures to (model, source).
+
+    The empirical-Bayes fit depends on the held-out runs only; with ``prior_mean = "run"`` each scored run
+    then shifts its prior mean. For scoring many runs against one calibration set.
+    """
     held_out = _labelled(held_out, "appearance hyperparameters")
     if prior_mean == "run":
-        if scored_signatures is None:
-            raise ValueError("appearance.prior_mean = 'run' needs the scored run's signatures")
         centred = [replace(run, signatures=run.signatures - run.signatures.mean(axis=0)) for run in held_out]
-        fitted, source = fitted_appearance(centred, model, evidence)
-        run_mean = np.asarray(scored_signatures, dtype=float).mean(axis=0)
-        hyper = {name: getattr(fitted, name) for name in APPEARANCE_HYPERPARAMETERS[model]}
-        hyper["mu"] = hyper["mu"] + run_mean
+        fitted, source = appearance_fitter(centred, model, evidence)(None)
         extra = {} if model == "joint" else {"evidence": evidence}
-        return type(fitted)(**hyper, **extra), f"{source} around each run's mean; prior mean = this run's mean signature"
+
+        def around_run_mean(scored_signatures):
+            if scored_signatures is None:
+                raise ValueError("appearance.prior_mean = 'run' needs the scored run's signatures")
+            hyper = {name: getattr(fitted, name) for name in APPEARANCE_HYPERPARAMETERS[model]}
+            hyper["mu"] = hyper["mu"] + np.asarray(scored_signatures, dtype=float).mean(axis=0)
+            return (type(fitted)(**hyper, **extra),
+                    f"{source} around each run's mean; prior mean = this run's mean signature")
+        return around_run_mean
     if prior_mean != "global":
         raise ValueError(f"appearance.prior_mean must be 'global' or 'run', got {prior_mean!r}")
     if model == "joint":
@@ -131,7 +146,8 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
         fitted = ptm.AppearanceModel.fit(held_out, evidence=evidence)
     else:
         raise ValueError(f"appearance.model must be 'joint' or 'independent', got {model!r}")
-    return fitted, f"empirical Bayes ({model}) on {_runs(held_out)}"
+    source = f"empirical Bayes ({model}) on {_runs(held_out)}"
+    return lambda scored_signatures: (fitted, source)
 
 
 #: The hyperparameters of each appearance model, in its constructor's order.
