@@ -54,6 +54,7 @@ BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
 MOVE_SETS = ("auto", "default", "paper", "guided")
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
+SAMPLING_COORDINATES = ("increments", "poses")  # ptm.odometry.SAMPLING_COORDINATES (parsing imports no inference)
 APPEARANCE_MODELS = ("joint", "independent")
 APPEARANCE_PRIOR_MEANS = ("global", "run")
 WORLD_GENERATORS = ("corridor_grid",)
@@ -103,10 +104,15 @@ DEFAULTS = {
         # uniform on the area of the run's dead-reckoned detections (plus the detection radius on every side).
         # Not the paper's model: its unnormalised ties make odometry lean to "every detection its own place".
         "tie_normaliser": False,
+        # "increments" (the default): importance samples of the odometry integral drawn in the relative poses
+        # between consecutive detections and composed; "poses": drawn around P* in the poses (the paper), which
+        # degenerates on long routes (docs/model.md §3.3, erratum E12). The committed results pin "poses".
+        "sampling_coordinates": "increments",
     },
     "appearance": {
-        # "independent": the paper's per-component model (the default: it passes the predictive check of
-        # `ptm-bench appearance-check`, results/appearance_check/); "joint": Normal-Inverse-Wishart over the K-vector
+        # "independent": the paper's per-component model (the default: the better of the two in the predictive
+        # check of `ptm-bench appearance-check`, results/appearance_check/); "joint": Normal-Inverse-Wishart over
+        # the K-vector
         "model": "independent",
         "evidence": "corrected",  # "paper_eq19" (the printed formula) exists for the independent model only
         # "run" (the default): the prior mean of a place's appearance is the scored run's own mean signature
@@ -249,7 +255,7 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: Keys added to DEFAULTS after results existed, with the value that reproduces what the code did before
 #: them: at that value a key stays out of a cell's definition, so adding an option does not make every
 #: existing row stale (a cell that sets another value is a new cell).
-_ADDED_KEYS = {("odometry", "tie_normaliser"): False}
+_ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses"}
 _UNSET = object()
 
 
@@ -306,6 +312,8 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
             _check_values(overrides, section, source, f"{where}: ")
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
     _check_choice(merged["inference"]["moves"], MOVE_SETS, f"{where} inference.moves", source)
+    _check_choice(merged["odometry"]["sampling_coordinates"], SAMPLING_COORDINATES,
+                  f"{where} odometry.sampling_coordinates", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
     _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
     _check_choice(merged["appearance"]["prior_mean"], APPEARANCE_PRIOR_MEANS, f"{where} appearance.prior_mean", source)
