@@ -18,6 +18,16 @@ then importance sampling from Q,
 1/2 |eps_s|^2 of docs/model.md §3.3, step 2; the structured factor of :mod:`ptm.pose_graph` draws
 P_s from d + r normals instead and evaluates the quadratic form directly.)
 
+Where the samples are placed (erratum E12 of docs/model.md): by default each
+draw delta_s ~ N(0, H^-1) is read in the relative poses between consecutive
+detections, P_s = C(u* + K delta_s) with u* the increments of P*, K = du/dP
+at P* and C the composition from the origin (:func:`compose_linearised_increments`).
+Both maps have unit Jacobian, so the weight formula above holds with the
+same 1/2 delta^T H delta; only the states differ. A Gaussian in the poses
+(``sampling_coordinates="poses"``, the paper) cannot follow the arcs on which
+an uncertain heading swings the later poses of a long route: on a
+78-detection grid its ESS was 1 of 100 and its estimate 33 nats low.
+
 Where the penalty is active at P* (a pair of different sets closer than the
 radius), Q alone gives heavy-tailed weights: the integrand's mass sits where
 Pen pushes the pair apart, in Q's tail. The proposal is then a defensive
@@ -86,8 +96,11 @@ from ._validation import non_negative, positive
 from .partitions import Partition
 from .pose_graph import SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, odometry_sqrt_information, poses_from_vector
 
-__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "landmark_penalty"]
+__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "SAMPLING_COORDINATES",
+           "compose_linearised_increments", "landmark_penalty"]
 
+#: Where the importance samples are drawn (``OdometryModel.sampling_coordinates``).
+SAMPLING_COORDINATES = ("poses", "increments")
 #: Bytes of one importance-sampling temporary (see ``OdometryTerm.sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
@@ -149,11 +162,18 @@ class OdometryModel:
         Bound on the per-partition memo.
     sparse_above : int
         Use sparse linear algebra when d = 3(N-1) exceeds this.
+    sampling_coordinates : {"poses", "increments"}
+        Where the Laplace Gaussian is drawn: around P* in the poses (the
+        paper), or in the relative poses between consecutive detections,
+        pushed through the composition (module docstring). Both estimate the
+        same integral; on long routes only "increments" does so with useful
+        effective sample sizes.
     """
 
     def __init__(self, sigma_xy: float = 0.1, sigma_theta: float = 0.05, sigma_topology: float = 0.3,
                  penalty_radius: float = 2.5, max_penalty: float = 100.0, n_importance: int = 100,
-                 seed=0, cache_size: int = 100_000, sparse_above: int = SPARSE_ABOVE_DIMENSION):
+                 seed=0, cache_size: int = 100_000, sparse_above: int = SPARSE_ABOVE_DIMENSION,
+                 sampling_coordinates: str = "increments"):
         self.sigma_xy = positive("sigma_xy", sigma_xy)
         self.sigma_theta = positive("sigma_theta", sigma_theta)
         self.sigma_topology = positive("sigma_topology", sigma_topology)
@@ -165,6 +185,9 @@ class OdometryModel:
         self.seed = seed
         self.cache_size = cache_size
         self.sparse_above = int(sparse_above)
+        if sampling_coordinates not in SAMPLING_COORDINATES:
+            raise ValueError(f"sampling_coordinates must be one of {SAMPLING_COORDINATES}, got {sampling_coordinates!r}")
+        self.sampling_coordinates = sampling_coordinates
 
     def bind(self, dataset) -> "OdometryTerm":
         """The likelihood term of this model for ``dataset`` (which must carry odometry)."""
@@ -173,7 +196,8 @@ class OdometryModel:
     def __repr__(self) -> str:
         return (f"OdometryModel(sigma_xy={self.sigma_xy}, sigma_theta={self.sigma_theta}, "
                 f"sigma_topology={self.sigma_topology}, penalty_radius={self.penalty_radius}, "
-                f"max_penalty={self.max_penalty}, n_importance={self.n_importance}, seed={self.seed!r})")
+                f"max_penalty={self.max_penalty}, n_importance={self.n_importance}, seed={self.seed!r}, "
+                f"sampling_coordinates={self.sampling_coordinates!r})")
 
 
 class OdometryTerm:
@@ -465,7 +489,7 @@ class OdometryTerm:
         penalty mixture; with it, -E - Pen - log(sum_c alpha_c exp(-Q_c)), Q_c = 1/2 (x - m_c)^T H (x - m_c)."""
         offsets, half_quadratic = fit.factor.sample(self.noise_columns[:, chunk])
         if mixture is None:
-            states = fit.x + offsets.T
+            states, offsets = self._placed(fit.x, offsets)
             return (half_quadratic - self.graph.energies_around(fit, offsets)
                     - self.penalties(states, offsets, fit.x, labels, centre_distance))
         # Component c draws the positions t of the penalised detections from N(t_c, S_c) and the rest of the
@@ -490,9 +514,18 @@ class OdometryTerm:
             exponents[c] = (mixture.log_alphas[c] - 0.5 * np.einsum("ms,ms->s", standardised, standardised)
                             - log_det + 0.5 * np.einsum("ms,ms->s", moved, moved))
         log_ratio = logsumexp(exponents, axis=0)  # log sum_c alpha_c q_c / q_0
-        states = fit.x + offsets.T
+        states, offsets = self._placed(fit.x, offsets)
         return (quadratic_at_centre - log_ratio - self.graph.energies_around(fit, offsets)
                 - self.penalties(states, offsets, fit.x, labels, centre_distance))
+
+    def _placed(self, centre, offsets) -> tuple[np.ndarray, np.ndarray]:
+        """The sampled states (S, d) for proposal draws ``offsets`` (d, S) around P* = ``centre``, and
+        their actual offsets from P*: P* + delta in "poses" coordinates, else
+        :func:`compose_linearised_increments`."""
+        if self.model.sampling_coordinates == "poses":
+            return centre + offsets.T, offsets
+        states = compose_linearised_increments(centre, offsets)
+        return states, states.T - centre[:, None]
 
     def penalty_mixture(self, fit: LaplaceFit, labels, centre_distance) -> "PenaltyMixture | None":
         """The defensive mixture of N(P*, H^-1) and a Laplace fit of the penalised target, or None when no pair
@@ -605,6 +638,45 @@ class PenaltyMixture:
     component_of: np.ndarray  # (S,): the component that draws sample s
     components: tuple  # slices of the samples of each component
     shift: float  # |u-dagger| = sqrt((P-dagger - P*)^T H (P-dagger - P*))
+
+
+def compose_linearised_increments(centre, offsets) -> np.ndarray:
+    """States (S, d) u -> P(u) for u = u* + K delta: ``offsets`` delta (d, S) mapped to relative poses.
+
+    u* are the relative poses between consecutive detections at P* = ``centre``
+    (d,), K = du/dP there, and P(u) composes u from the fixed origin. K and the
+    composition are triangular with rotation (or unit) diagonal blocks, so both
+    have determinant 1: if delta ~ N(0, H^-1), the state P(u* + K delta) has
+    density N(delta; 0, H^-1) in the increments' coordinates, where the integral
+    of exp(-E - Pen) is the same as in the poses'. The importance weights keep
+    their form; only the states change. Odometry constrains the increments
+    directly, so this Gaussian stays close to the integrand on long routes,
+    whereas in the poses a heading error swings every later pose on an arc that
+    a Gaussian in the poses cannot follow.
+
+        >>> centre = np.array([1.0, 0.0, 0.5, 2.0, 0.5, 1.0])         # two poses after the origin
+        >>> np.allclose(compose_linearised_increments(centre, np.zeros((6, 1))), centre)
+        True
+    """
+    centre = np.asarray(centre, dtype=float)
+    samples = offsets.shape[1]
+    poses = poses_from_vector(centre)  # (N, 3), the origin first
+    moves = np.concatenate([np.zeros((1, 3, samples)), offsets.reshape(-1, 3, samples)])  # (N, 3, S)
+    before, after = poses[:-1], poses[1:]
+    cos, sin = np.cos(before[:, 2])[:, None], np.sin(before[:, 2])[:, None]
+    dx, dy = (after[:, 0] - before[:, 0])[:, None], (after[:, 1] - before[:, 1])[:, None]
+    forward, left = cos * dx + sin * dy, -sin * dx + cos * dy  # u*: the step in the frame of the pose before
+    ddx, ddy = moves[1:, 0] - moves[:-1, 0], moves[1:, 1] - moves[:-1, 1]
+    turn_before = moves[:-1, 2]
+    step_forward = forward + cos * ddx + sin * ddy + left * turn_before
+    step_left = left - sin * ddx + cos * ddy - forward * turn_before
+    step_turn = (after[:, 2] - before[:, 2])[:, None] + moves[1:, 2] - moves[:-1, 2]
+    headings = np.cumsum(step_turn, axis=0)  # heading of pose k (the origin's is 0)
+    heading_before = np.concatenate([np.zeros((1, samples)), headings[:-1]])
+    cos_h, sin_h = np.cos(heading_before), np.sin(heading_before)
+    x = np.cumsum(cos_h * step_forward - sin_h * step_left, axis=0)
+    y = np.cumsum(sin_h * step_forward + cos_h * step_left, axis=0)
+    return np.stack([x, y, headings], axis=1).reshape(-1, samples).T
 
 
 def _position_selector(detections, dimension: int) -> np.ndarray:

@@ -24,7 +24,7 @@ import scipy.spatial.distance
 import scipy.stats
 
 import ptm
-from ptm.odometry import OdometryTerm
+from ptm.odometry import OdometryTerm, compose_linearised_increments
 from ptm.pose_graph import poses_from_vector
 from test_odometry import square_loop_dataset
 
@@ -73,9 +73,13 @@ def test_negative_control_the_single_gaussian_proposal_fails_the_same_check(loop
     assert np.ptp(masses) > 2 * SPREAD_TOLERANCE, masses
 
 
-def test_mixture_density_matches_dense_linear_algebra():
+@pytest.mark.parametrize("coordinates", ["poses", "increments"])
+def test_mixture_density_matches_dense_linear_algebra(coordinates):
+    # In the increments' coordinates a draw delta is placed at P(u* + K delta) (unit Jacobian): its
+    # proposal density is the poses' one at P* + delta, its energy and penalty those of the placed state.
     dataset = issue_loop()
-    term = loop_model(10.0, seed=0).bind(dataset)
+    term = loop_model(10.0, seed=0).bind(dataset).rebind(
+        ptm.OdometryModel(0.2, 0.05, 0.3, 3.0, 10.0, n_importance=100, seed=0, sampling_coordinates=coordinates))
     labels = np.array([0, 1, 2, 3, 4, 1, 2])  # detection 4 revisits place 0 but is labelled new: penalised
     topology = term.graph.topology(labels)
     fit = term.graph.fit(term.graph.dead_reckoning(), topology)
@@ -93,15 +97,16 @@ def test_mixture_density_matches_dense_linear_algebra():
     offsets = offsets + mixture.regression @ (moved - local)
     hessian = term.graph.hessian_matrix(topology, term.graph.linearise(fit.x, topology).gauss_newton).toarray()
     covariance = np.linalg.inv(hessian)
-    states = fit.x + offsets.T
+    drawn = fit.x + offsets.T
+    states = drawn if coordinates == "poses" else compose_linearised_increments(fit.x, offsets)
     log_densities = []
     for c, share in enumerate(np.exp(mixture.log_alphas)):
         spread = mixture.relative_factors[c] @ mixture.relative_factors[c].T - np.eye(len(mixture.means[c]))
         component = scipy.stats.multivariate_normal(fit.x + mixture.regression @ mixture.means[c],
                                                     covariance + mixture.regression @ spread @ mixture.regression.T)
-        log_densities.append(math.log(share) + component.logpdf(states))
+        log_densities.append(math.log(share) + component.logpdf(drawn))
     expected = (-np.logaddexp.reduce(np.array(log_densities), axis=0) - term.graph.energy(states, topology)
-                - term.penalties(states, offsets, fit.x, labels, centre_distance))
+                - term.penalties(states, states.T - fit.x[:, None], fit.x, labels, centre_distance))
     log_norm = 0.5 * term.dimension * math.log(2 * math.pi) - 0.5 * fit.factor.log_det()
     np.testing.assert_allclose(log_weights + log_norm, expected, rtol=0, atol=1e-9)
     assert np.all(mixture.component_of[:50] == 0) and np.all(mixture.component_of[50:] == 1)

@@ -7,7 +7,9 @@ printed by the code at commit 4338877 (before the odometry evaluation lost its P
 OPENBLAS_NUM_THREADS=1: ``term.log_likelihood(labels)`` for the truth, all distinct, all one place and
 random partitions (``numpy.random.default_rng(len(name)).integers(0, 4, size=n)``) of three cases, which
 use the penalty mixture (60-90 % of these partitions), the banded + low-rank and the sparse factor, and
-per-step covariances with correlations.
+per-step covariances with correlations. They sample in the poses' coordinates, as the committed results
+(their configs pin ``odometry.sampling_coordinates = "poses"``); the default is now the increments'
+(tests/test_odometry_increments.py).
 
     python -m pytest tests/test_odometry_values.py -q
 """
@@ -19,7 +21,7 @@ import ptm
 from test_odometry import mixed_dataset, square_loop_dataset
 
 LOOP = dict(sigma_xy=0.5, sigma_theta=0.15, sigma_topology=0.5, penalty_radius=3.0, max_penalty=5.0,
-            n_importance=50, seed=0)
+            n_importance=50, seed=0, sampling_coordinates="poses")
 
 LOOP_VALUES = [
     ([0, 1, 2, 3, 0, 1, 2, 3], -12.022254966923885),
@@ -42,7 +44,8 @@ LOOP_SPARSE_VALUES = [
     ([0, 1, 0, 2, 3, 1, 3, 1], -89.68101034780928),
 ]
 
-CORRELATED = dict(sigma_topology=0.5, penalty_radius=6.0, max_penalty=100.0, n_importance=100, seed=3)
+CORRELATED = dict(sigma_topology=0.5, penalty_radius=6.0, max_penalty=100.0, n_importance=100, seed=3,
+                  sampling_coordinates="poses")
 
 CORRELATED_VALUES = [
     ([0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2], -76.11773926089514),

@@ -261,3 +261,13 @@ def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(t
     assert definitions({"tie_normaliser": True})[0] != definitions({})[0]   # the inference cell changes
     with pytest.raises(ValueError, match="tie_normaliser must be true or false"):
         definitions({"tie_normaliser": 1})
+    # sampling_coordinates was added with a new default: the rows computed before it are those pinned to "poses"
+    pinned = experiment.expand_cells(experiment.parse_experiment(
+        {**CONFIG, "odometry": {**CONFIG["odometry"], "sampling_coordinates": "poses"}}), tmp_path)[0]
+    before_the_key = {**pinned, "settings": {**pinned["settings"], "odometry": {
+        key: value for key, value in pinned["settings"]["odometry"].items() if key != "sampling_coordinates"}}}
+    before_the_key.pop("definition")
+    assert experiment._definition(before_the_key) == pinned["definition"]
+    assert definitions({"sampling_coordinates": "poses"})[0] != definitions({})[0]
+    with pytest.raises(ValueError, match="sampling_coordinates"):
+        definitions({"sampling_coordinates": "world"})

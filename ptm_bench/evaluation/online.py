@@ -46,7 +46,8 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
         used["sigma_topology"], used["source_sigma_topology"] = calibration.topology_sigma(settings, dataset.meta)
         built.append(ptm.OdometryModel(settings["sigma_xy"], settings["sigma_theta"], used["sigma_topology"],
                                        used["penalty_radius"], settings["max_penalty"],
-                                       n_importance=settings["n_importance"], seed=seed))
+                                       n_importance=settings["n_importance"], seed=seed,
+                                       sampling_coordinates=settings["sampling_coordinates"]))
     share = calibration.places_per_detection(held_out)
     used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
                                  f"(held out) x n places")
