@@ -6,7 +6,9 @@ grid in random order, odometry composed on SE(2) with noise):
 * the median wall (and process CPU) time of one log P(O | T) evaluation on a cache miss
   (Laplace fit from the two history-free starts of docs/model.md §3.3, plus importance
   sampling with ``n_importance = 100``) at N = 10, 50, 100, 200, for
-  partitions one Gibbs move away from the truth, as a sampler proposes them;
+  partitions one Gibbs move away from the truth, as a sampler proposes them, with the
+  weights' mean ESS and Monte-Carlo standard error, for samples drawn in the increments
+  (the default) and in the poses (metrics ending ``_poses``, erratum E12);
 * the odometry cache hit rate, the mean effective sample size of the weights
   and the MH steps per second of a chain with odometry + appearance at N = 50,
   with plain and with delayed acceptance.
@@ -49,9 +51,10 @@ def synthetic_route_dataset(n: int, seed: int = 0, spacing: float = 5.0) -> ptm.
     return ptm.Dataset(odometry=odometry, signatures=signatures, labels=labels, true_poses=poses)
 
 
-def odometry_model(seed: int = 0) -> ptm.OdometryModel:
+def odometry_model(seed: int = 0, sampling_coordinates: str = "increments") -> ptm.OdometryModel:
     return ptm.OdometryModel(sigma_xy=0.1, sigma_theta=0.02, sigma_topology=0.3, penalty_radius=2.5,
-                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed)
+                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed,
+                             sampling_coordinates=sampling_coordinates)
 
 
 def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
@@ -64,31 +67,47 @@ def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
     return out
 
 
+#: Metric-name suffix of each ``sampling_coordinates`` (the default's metrics keep their names).
+COORDINATE_SUFFIX = {"increments": "", "poses": "_poses"}
+
+
 def odometry_rows(args) -> list[dict]:
     rows = []
     evaluations = max(10, int(60 * args.scale))
     for n in EVALUATION_SIZES:
         dataset = synthetic_route_dataset(n)
-        term = odometry_model().bind(dataset)
-        term.evaluate(dataset.labels)  # the chain's current state (no longer a warm start: kept for comparability)
-        wall, cpu = [], []
+        # one term per coordinates (no shared fits), the partitions evaluated alternately so that both
+        # see the same load
+        terms = {coordinates: odometry_model(sampling_coordinates=coordinates).bind(dataset)
+                 for coordinates in COORDINATE_SUFFIX}
+        wall = {coordinates: [] for coordinates in terms}
+        cpu = {coordinates: [] for coordinates in terms}
+        for term in terms.values():
+            term.evaluate(dataset.labels)  # the chain's current state (no longer a warm start: kept for comparability)
         for labels in neighbouring_partitions(dataset.labels, evaluations, np.random.default_rng(n)):
-            started_wall, started_cpu = time.perf_counter(), time.process_time()
-            term.evaluate(labels)
-            wall.append(time.perf_counter() - started_wall)
-            cpu.append(time.process_time() - started_cpu)
-        diagnostics = term.diagnostics()
+            for coordinates, term in terms.items():
+                started_wall, started_cpu = time.perf_counter(), time.process_time()
+                term.evaluate(labels)
+                wall[coordinates].append(time.perf_counter() - started_wall)
+                cpu[coordinates].append(time.process_time() - started_cpu)
+        for coordinates, term in terms.items():
+            diagnostics, suffix = term.diagnostics(), COORDINATE_SUFFIX[coordinates]
+            rows += [
+                {"section": "odometry", "metric": f"evaluation_median_ms_cache_miss{suffix}", "n": n,
+                 "value": 1e3 * float(np.median(wall[coordinates])), "unit": "ms"},
+                {"section": "odometry", "metric": f"evaluation_median_cpu_ms_cache_miss{suffix}", "n": n,
+                 "value": 1e3 * float(np.median(cpu[coordinates])), "unit": "ms (process CPU)"},
+                {"section": "odometry", "metric": f"importance_ess_mean{suffix}", "n": n,
+                 "value": diagnostics["ess_mean"], "unit": f"of {N_IMPORTANCE}"},
+                {"section": "odometry", "metric": f"mc_standard_error_mean{suffix}", "n": n,
+                 "value": diagnostics["mc_standard_error_mean"], "unit": "nats"},
+            ]
+        diagnostics = terms["increments"].diagnostics()  # the fits are the same in both
         rows += [
-            {"section": "odometry", "metric": "evaluation_median_ms_cache_miss", "n": n,
-             "value": 1e3 * float(np.median(wall)), "unit": "ms"},
-            {"section": "odometry", "metric": "evaluation_median_cpu_ms_cache_miss", "n": n,
-             "value": 1e3 * float(np.median(cpu)), "unit": "ms (process CPU)"},
             {"section": "odometry", "metric": "newton_iterations_mean", "n": n,
              "value": diagnostics["lm_iterations_mean"], "unit": "iterations"},
             {"section": "odometry", "metric": "factorisations_mean", "n": n,
              "value": diagnostics["factorisations_mean"], "unit": "per evaluation"},
-            {"section": "odometry", "metric": "importance_ess_mean", "n": n,
-             "value": diagnostics["ess_mean"], "unit": f"of {N_IMPORTANCE}"},
         ]
     steps = max(500, int(5_000 * args.scale))
     dataset = synthetic_route_dataset(CHAIN_SIZE)
