@@ -216,3 +216,19 @@ def test_figures_of_variants_no_longer_drawn_are_removed_and_others_kept(tmp_pat
     summary.write_summary(experiment, _table(experiment, tmp_path), tmp_path)
     assert not removed.exists() and unrelated.read_bytes() == b"mine"
     assert (tmp_path / "top5_appearance.png").is_file() and (tmp_path / "trajectory.png").is_file()
+
+
+def test_the_odometry_ess_is_summarised_and_a_degenerate_one_is_flagged(tmp_path, experiment, monkeypatch):
+    monkeypatch.setattr(summary, "dataset_for", _fake_dataset)
+    table = _table(experiment, tmp_path)
+    sampled = table["variant"] == "appearance"  # stands in for a variant with odometry: only the column matters
+    table["diag_odometry_ess_mean"] = np.where(sampled, 40.0, np.nan)
+    healthy = summary.write_summary(experiment, table, tmp_path, figures=False).read_text()
+    scores = summary.aggregate(table).set_index("variant")
+    assert (scores.loc["appearance", "odometry_ess"] == 40.0).all()
+    assert scores.loc["greedy_odometry", "odometry_ess"].isna().all()
+    assert "Odometry estimates unreliable" not in healthy
+    table.loc[sampled & (table["aliasing"] == 1.0), "diag_odometry_ess_mean"] = 1.2
+    degenerate = summary.write_summary(experiment, table, tmp_path, figures=False).read_text()
+    assert "Odometry estimates unreliable** in 1 of 2 conditions" in degenerate
+    assert "short_loop a=1 noise=1 appearance: 1.2" in degenerate

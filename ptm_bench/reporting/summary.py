@@ -53,6 +53,8 @@ __all__ = ["aggregate", "calibration_by_variant", "current_rows", "markdown_tabl
 CONDITION = ["world", "aliasing", "noise"]
 #: The measured aliasing of a cell's dataset, shown beside the aliasing knob when the table has it.
 MEASURED_ALIASING = "aliasing_auc"
+#: Below this mean effective sample size of its importance weights a condition's odometry values are flagged.
+LOW_ODOMETRY_ESS = 5.0
 #: Columns that say where a parameter of a cell came from: ``source_<parameter>``.
 SOURCE_PREFIX = "source_"
 
@@ -116,6 +118,7 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             # Chains that disagree (split R-hat of log P above 1.1) make the masses above unreliable.
             "rhat_over_1.1": _fraction_above(group, "diag_rhat_log_prob", 1.1),
             "chains_agree": _chains_agree(group),
+            "odometry_ess": _mean(group, "diag_odometry_ess_mean"),
             "detections": _mean(group, "n_measurements"),
             "wall_s": group["wall_s"].mean(),
             **_pooled_calibration(group),
@@ -217,6 +220,20 @@ def _chains_agree(group: pd.DataFrame) -> float:
     return float((warnings.astype("string").fillna("") == "").mean())
 
 
+def _odometry_ess_note(summary: pd.DataFrame) -> list[str]:
+    """A warning naming the conditions whose odometry estimates rest on fewer than ``LOW_ODOMETRY_ESS``
+    effective importance samples; nothing when there are none."""
+    low = summary[summary["odometry_ess"] < LOW_ODOMETRY_ESS]
+    if not len(low):
+        return []
+    names = ", ".join(f"{row.world} a={row.aliasing:g} noise={row.noise:g} {row.variant}: {row.odometry_ess:.1f}"
+                      for row in low.itertuples())
+    return [f"**Odometry estimates unreliable** in {len(low)} of {summary['odometry_ess'].notna().sum()} "
+            f"conditions with odometry: their importance weights have a mean effective sample size below "
+            f"{LOW_ODOMETRY_ESS:g} ({names}), so log P(O | T) is dominated by single samples and its errors "
+            "exceed the reported standard errors (docs/model.md §3.3, erratum E12).", ""]
+
+
 def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
     """Fraction of the rows where ``column`` exceeds ``limit``, among those that have it; NaN if none do."""
     values = group[column].dropna() if column in group else pd.Series(dtype=float)
@@ -285,7 +302,9 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         "scores of the co-assignment matrix, `rhat_over_1.1` the fraction of seeds whose chains disagree "
         "(split R-hat of log P > 1.1: the masses of those runs are not converged), `chains_agree` the fraction of "
         "sampled seeds whose independent chains agree (split R-hat of log P and of the number of places <= 1.05, "
-        "co-assignments within 0.05; `–` for exact posteriors and baselines)"
+        "co-assignments within 0.05; `–` for exact posteriors and baselines), `odometry_ess` the mean effective "
+        "sample size of the odometry term's importance weights over its evaluations (out of `n_importance`; near 1 "
+        "its values are Monte-Carlo artefacts, docs/model.md §3.3)"
         + (f", `{MEASURED_ALIASING}` the measured aliasing of the datasets (AUC of signature distance separating "
            "same-place from different-place pairs: 1 = appearance tells places apart, 0.5 = it cannot)"
            if MEASURED_ALIASING in _condition_columns(summary) else "") + ".",
@@ -298,8 +317,9 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         columns = _condition_columns(summary) + [
             "variant", "seeds", "detections", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari",
             "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "chains_agree",
-            "wall_s"]
+            "odometry_ess", "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
+        lines += _odometry_ess_note(summary)
         lines += _calibration_section(table, summary)
     lines += _provenance_section(table)
     if len(failed):
