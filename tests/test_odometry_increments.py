@@ -69,6 +69,10 @@ def test_the_composition_is_exact_in_the_increments_and_first_order_in_the_poses
     np.testing.assert_allclose(relative_pose(placed[:-1], placed[1:]), linearised, atol=1e-6)
 
 
-def test_unknown_coordinates_are_refused():
+def test_unknown_coordinates_are_refused_and_configs_know_the_same_ones():
     with pytest.raises(ValueError, match="sampling_coordinates must be one of"):
         ptm.OdometryModel(sampling_coordinates="world")
+    from ptm_bench.evaluation import experiment  # it lists them itself: parsing a config imports no inference
+
+    assert set(experiment.SAMPLING_COORDINATES) == set(ptm.odometry.SAMPLING_COORDINATES)
+    assert experiment.DEFAULTS["odometry"]["sampling_coordinates"] == ptm.OdometryModel().sampling_coordinates

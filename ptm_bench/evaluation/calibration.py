@@ -110,8 +110,6 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
     (``scored_signatures``: all its detections, no labels). With ``"global"`` the spread between worlds
     counts as spread between places, and a run whose places all look alike is read as one place.
     """
-    if prior_mean == "run" and scored_signatures is None:
-        raise ValueError("appearance.prior_mean = 'run' needs the scored run's signatures")
     return appearance_fitter(held_out, model, evidence, prior_mean)(scored_signatures)
 
 
