@@ -32,7 +32,17 @@ Where the penalty is active at P* (a pair of different sets closer than the
 radius), Q alone gives heavy-tailed weights: the integrand's mass sits where
 Pen pushes the pair apart, in Q's tail. The proposal is then a defensive
 mixture (the variant of docs/model.md §3.3 (erratum E10) built around argmin(E + Pen), kept
-alongside Q). Let t = B P be the positions of the detections in the penalised
+alongside Q). By default (``penalty_proposal="mode"``) its second component
+is the Laplace fit of exp(-E - Pen) over all poses: P-dagger = argmin (E + Pen)
+by Newton steps from P* and its Hessian H-dagger (:meth:`OdometryTerm.penalised_mode`),
+drawn in the same coordinates as Q; a state's density under each component
+is that of its offset from the component's centre (the maps have unit
+Jacobian, :func:`linearised_increment_offsets` inverts the composition), and
+the balance-heuristic weight is exp(-E - Pen) / (1/2 Q + 1/2 Q_1). A split
+detection has to travel a metre or more from its former place-mates, every
+heading on the way adjusted, which the variant below cannot follow.
+``penalty_proposal="subspace"`` (what the committed results were run with)
+fits only the penalised positions. Let t = B P be the positions of the detections in the penalised
 pairs (2m numbers), S = B H^-1 B^T their covariance under Q and t* = B P*.
 Component 1 is the Laplace fit of Q(P) exp(-Pen(P)) in t: the mode t† of
 1/2 (t - t*)^T S^-1 (t - t*) + Pen(t) (damped Newton in 2m dimensions) and
@@ -96,11 +106,17 @@ from ._validation import non_negative, positive
 from .partitions import Partition
 from .pose_graph import SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, odometry_sqrt_information, poses_from_vector
 
-__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "SAMPLING_COORDINATES",
-           "compose_linearised_increments", "landmark_penalty"]
+__all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "PenalisedMode",
+           "PENALTY_PROPOSALS", "SAMPLING_COORDINATES", "compose_linearised_increments",
+           "linearised_increment_offsets", "landmark_penalty"]
 
 #: Where the importance samples are drawn (``OdometryModel.sampling_coordinates``).
 SAMPLING_COORDINATES = ("poses", "increments")
+#: How the proposal accounts for the penalty (``OdometryModel.penalty_proposal``): a Laplace fit of E + Pen
+#: over all poses, or only over the penalised detections' positions with the rest following linearly.
+PENALTY_PROPOSALS = ("mode", "subspace")
+#: Iterations of the search for argmin (E + Pen) (:meth:`OdometryTerm.penalised_mode`).
+PENALISED_MODE_ITERATIONS = 100
 #: Bytes of one importance-sampling temporary (see ``OdometryTerm.sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
@@ -173,7 +189,7 @@ class OdometryModel:
     def __init__(self, sigma_xy: float = 0.1, sigma_theta: float = 0.05, sigma_topology: float = 0.3,
                  penalty_radius: float = 2.5, max_penalty: float = 100.0, n_importance: int = 100,
                  seed=0, cache_size: int = 100_000, sparse_above: int = SPARSE_ABOVE_DIMENSION,
-                 sampling_coordinates: str = "increments"):
+                 sampling_coordinates: str = "increments", penalty_proposal: str = "mode"):
         self.sigma_xy = positive("sigma_xy", sigma_xy)
         self.sigma_theta = positive("sigma_theta", sigma_theta)
         self.sigma_topology = positive("sigma_topology", sigma_topology)
@@ -188,6 +204,9 @@ class OdometryModel:
         if sampling_coordinates not in SAMPLING_COORDINATES:
             raise ValueError(f"sampling_coordinates must be one of {SAMPLING_COORDINATES}, got {sampling_coordinates!r}")
         self.sampling_coordinates = sampling_coordinates
+        if penalty_proposal not in PENALTY_PROPOSALS:
+            raise ValueError(f"penalty_proposal must be one of {PENALTY_PROPOSALS}, got {penalty_proposal!r}")
+        self.penalty_proposal = penalty_proposal
 
     def bind(self, dataset) -> "OdometryTerm":
         """The likelihood term of this model for ``dataset`` (which must carry odometry)."""
@@ -197,7 +216,7 @@ class OdometryModel:
         return (f"OdometryModel(sigma_xy={self.sigma_xy}, sigma_theta={self.sigma_theta}, "
                 f"sigma_topology={self.sigma_topology}, penalty_radius={self.penalty_radius}, "
                 f"max_penalty={self.max_penalty}, n_importance={self.n_importance}, seed={self.seed!r}, "
-                f"sampling_coordinates={self.sampling_coordinates!r})")
+                f"sampling_coordinates={self.sampling_coordinates!r}, penalty_proposal={self.penalty_proposal!r})")
 
 
 class OdometryTerm:
@@ -459,10 +478,19 @@ class OdometryTerm:
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
-        mixture = self.penalty_mixture(fit, labels, centre_distance)
-        log_weights = log_proposal_norm + np.concatenate([
-            self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
-        ])
+        if self.model.penalty_proposal == "mode":
+            mixture = self.penalised_mode(fit, labels, centre_distance)
+            log_weights = np.concatenate([
+                self.mode_mixture_log_weights(fit, mixture, labels, centre_distance, chunk)
+                for chunk in self.sample_chunks
+            ]) if mixture is not None else None
+        else:
+            mixture = self.penalty_mixture(fit, labels, centre_distance)
+            log_weights = None
+        if log_weights is None:
+            log_weights = log_proposal_norm + np.concatenate([
+                self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
+            ])
         # stratified (deterministic allocation) balance-heuristic estimator: the mean of all weights
         estimate = float(logsumexp(log_weights)) - math.log(len(log_weights))
         weights = np.exp(log_weights - float(log_weights.max()))  # scaled weights, for the ESS and the error
@@ -483,6 +511,122 @@ class OdometryTerm:
             solution=fit.x,
             penalty_shift=mixture.shift if mixture is not None else 0.0,
         )
+
+    def penalised_mode(self, fit: LaplaceFit, labels, centre_distance) -> "PenalisedMode | None":
+        """The Laplace fit of exp(-E - Pen) over all poses, the second component of the ``"mode"`` proposal,
+        or None when no pair of different sets is within the penalty radius at P* (nothing to fit).
+
+        P-dagger = argmin (E + Pen) is searched from P* (so it is a function of the partition alone) by
+        Newton steps on the Gauss-Newton Hessian of E plus the positive semi-definite part of Pen's
+        (positive definite, so every step descends) with backtracking; the pairs counted are those of
+        different sets within the radius at each iterate. The component's precision H-dagger is that
+        Hessian at P-dagger with Pen's exact Hessian where the sum stays positive definite.
+        """
+        if self.model.max_penalty == 0.0 or self.n < 2 or not len(self._penalised_pairs(centre_distance, labels)):
+            return None
+        positions = self.graph.layout.positions  # the x and y entries of the state, detection by detection
+
+        def penalised(x):  # (E + Pen at x, its Linearisation of E, the pairs' penalty there)
+            linearisation = self.graph.linearise(x, fit.topology)
+            penalty = self._penalty_at(x, labels)
+            return linearisation.energy + penalty(x[positions].reshape(-1, 2)), linearisation, penalty
+
+        def hessian(linearisation, penalty, tangential):
+            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), tangential)
+            matrix = self.graph.hessian_matrix(fit.topology, linearisation.gauss_newton).toarray()
+            matrix[np.ix_(positions, positions)] += penalty_hessian
+            full_gradient = linearisation.gradient.copy()
+            full_gradient[positions] += gradient
+            return matrix, full_gradient
+
+        x = fit.x
+        value, linearisation, penalty = penalised(x)
+        for _ in range(PENALISED_MODE_ITERATIONS):
+            matrix, gradient = hessian(linearisation, penalty, tangential=False)
+            step = -_positive_definite_solve(matrix, gradient)
+            slope = float(gradient @ step)
+            if slope > -1e-12 * (1.0 + abs(value)):
+                break
+            length = 1.0
+            while length > 1e-10:
+                candidate = penalised(x + length * step)
+                if candidate[0] <= value + 1e-4 * length * slope:
+                    break
+                length *= 0.5
+            else:
+                break
+            x = x + length * step
+            value, linearisation, penalty = candidate
+            if np.max(np.abs(length * step)) < 1e-9:
+                break
+        centre_hessian = self.graph.hessian_matrix(fit.topology, self.graph.linearise(fit.x, fit.topology).gauss_newton)
+        offset = self._offsets_from(fit.x, x[None, :])[:, 0]
+        shift = math.sqrt(max(float(offset @ (centre_hessian @ offset)), 0.0))
+        if shift < 1e-9:  # the penalty does not move the mode
+            return None
+        for tangential in (True, False):  # Pen's exact Hessian, else its positive semi-definite part
+            matrix, _ = hessian(linearisation, penalty, tangential)
+            try:
+                factor = np.linalg.cholesky(matrix)
+                break
+            except np.linalg.LinAlgError:
+                continue
+        counts, components = self._component_shares()
+        half_log_two_pi = 0.5 * self.dimension * math.log(2.0 * math.pi)
+        return PenalisedMode(
+            centres=(fit.x, x), factors=(None, factor), hessians=(centre_hessian, matrix),
+            log_norms=np.array([half_log_two_pi - 0.5 * fit.factor.log_det(),
+                                half_log_two_pi - float(np.sum(np.log(np.diag(factor))))]),
+            log_alphas=np.log(np.array(counts) / sum(counts)), components=components, shift=shift)
+
+    def mode_mixture_log_weights(self, fit: LaplaceFit, mode: "PenalisedMode", labels, centre_distance,
+                                 chunk: slice) -> np.ndarray:
+        """log w = -E - Pen - log(alpha_0 q_0 + alpha_1 q_1) for the samples of ``chunk``: q_0 the Laplace
+        Gaussian at P*, q_1 the one at P-dagger (:meth:`penalised_mode`), both in the sampling coordinates
+        (where a state's density is that of its offset from the component's centre: the maps have unit
+        Jacobian)."""
+        states = []
+        for centre, component, factor in zip(mode.centres, mode.components, mode.factors):
+            columns = slice(max(chunk.start, component.start), min(chunk.stop, component.stop))
+            if columns.start < columns.stop:
+                noise = np.asfortranarray(self.noise_columns[:, columns])
+                offsets = (fit.factor.sample(noise)[0] if factor is None
+                           else _solve_triangular(factor.T, noise[:self.dimension], lower=False))
+                states.append(self._placed(centre, offsets)[0])
+        states = np.concatenate(states)
+        log_densities = []
+        for centre, matrix, log_norm, log_alpha in zip(mode.centres, mode.hessians, mode.log_norms, mode.log_alphas):
+            offsets = self._offsets_from(centre, states)
+            log_densities.append(log_alpha - log_norm - 0.5 * np.einsum("ds,ds->s", offsets, matrix @ offsets))
+        from_centre = states.T - fit.x[:, None]
+        return (-self.graph.energies_around(fit, from_centre)
+                - self.penalties(states, from_centre, fit.x, labels, centre_distance)
+                - logsumexp(log_densities, axis=0))
+
+    def _offsets_from(self, centre, states) -> np.ndarray:
+        """The offsets (d, S) that :meth:`_placed` maps to ``states`` (S, d) around ``centre``."""
+        if self.model.sampling_coordinates == "poses":
+            return states.T - centre[:, None]
+        return linearised_increment_offsets(centre, states)
+
+    def _penalised_pairs(self, distance, labels) -> np.ndarray:
+        """Indices (into ``pdist`` order) of the pairs of different sets closer than the penalty radius."""
+        near = np.flatnonzero(distance < self.model.penalty_radius)
+        return near[labels[self._pair_first[near]] != labels[self._pair_second[near]]]
+
+    def _penalty_at(self, x, labels) -> "_PairPenalty":
+        """Pen over the positions of detections 1..N-1 (rows 0..N-2; detection 0 is the origin, row -1),
+        counting the pairs of different sets within the radius at the state ``x``."""
+        near = self._penalised_pairs(scipy.spatial.distance.pdist(poses_from_vector(x)[:, :2]), labels)
+        return _PairPenalty((self._pair_first[near] - 1, self._pair_second[near] - 1), self.n - 1,
+                            self.model.penalty_radius, self.model.max_penalty)
+
+    def _component_shares(self) -> tuple[list, tuple]:
+        """The samples of the two mixture components: their counts and slices (the defensive one first)."""
+        total = self.model.n_importance
+        counts = [total - int(total * (1.0 - DEFENSIVE_SHARE)), int(total * (1.0 - DEFENSIVE_SHARE))]
+        bounds = np.cumsum([0] + counts)
+        return counts, tuple(slice(bounds[c], bounds[c + 1]) for c in range(len(counts)))
 
     def log_weight_terms(self, fit: LaplaceFit, labels, centre_distance, mixture, chunk: slice) -> np.ndarray:
         """1/2 delta^T H delta - E(P* + delta) - Pen(P* + delta) for the samples of ``chunk`` without the
@@ -538,8 +682,7 @@ class OdometryTerm:
         """
         if self.model.max_penalty == 0.0 or self.n < 2:
             return None
-        near = np.flatnonzero(centre_distance < self.model.penalty_radius)
-        near = near[labels[self._pair_first[near]] != labels[self._pair_second[near]]]
+        near = self._penalised_pairs(centre_distance, labels)
         if not len(near):
             return None
         first, second = self._pair_first[near], self._pair_second[near]
@@ -570,9 +713,7 @@ class OdometryTerm:
         inverse = _solve_triangular(precision_factor, np.eye(len(mean)), lower=True)
         means = [np.zeros(len(mean)), mean]
         factors = [np.eye(len(mean)), np.linalg.cholesky(inverse.T @ inverse)]  # F F^T = precision^-1
-        total = self.model.n_importance
-        counts = [total - int(total * (1.0 - DEFENSIVE_SHARE)), int(total * (1.0 - DEFENSIVE_SHARE))]
-        bounds = np.cumsum([0] + counts)
+        counts, components = self._component_shares()
         component_of = np.repeat(np.arange(len(means)), counts)
         return PenaltyMixture(
             selector=selector,
@@ -581,9 +722,9 @@ class OdometryTerm:
             means=means,
             relative_factors=factors,
             relative_log_dets=[float(np.sum(np.log(np.diag(f)))) for f in factors],
-            log_alphas=np.log(np.array(counts) / total),
+            log_alphas=np.log(np.array(counts) / sum(counts)),
             component_of=component_of,
-            components=tuple(slice(bounds[c], bounds[c + 1]) for c in range(len(means))),
+            components=components,
             shift=shift,
         )
 
@@ -640,6 +781,20 @@ class PenaltyMixture:
     shift: float  # |u-dagger| = sqrt((P-dagger - P*)^T H (P-dagger - P*))
 
 
+@dataclass(frozen=True)
+class PenalisedMode:
+    """The ``"mode"`` proposal: q_0 = the Laplace Gaussian at P* and q_1 = the one at P-dagger = argmin (E + Pen),
+    each a Gaussian in the sampling coordinates around its centre."""
+
+    centres: tuple  # (P*, P-dagger), (d,) each
+    factors: tuple  # (None: the fit's own factor of H, the lower Cholesky factor of H-dagger)
+    hessians: tuple  # (H at P*, the Gauss-Newton Hessian of E, sparse; H-dagger, dense (d, d))
+    log_norms: np.ndarray  # (2,): d/2 log 2 pi - 1/2 log det H_c
+    log_alphas: np.ndarray  # (2,): the share of the samples each component draws
+    components: tuple  # slices of the samples of each component
+    shift: float  # the offset of P-dagger from P* in the metric of H (its "distance" in standard deviations)
+
+
 def compose_linearised_increments(centre, offsets) -> np.ndarray:
     """States (S, d) u -> P(u) for u = u* + K delta: ``offsets`` delta (d, S) mapped to relative poses.
 
@@ -677,6 +832,41 @@ def compose_linearised_increments(centre, offsets) -> np.ndarray:
     x = np.cumsum(cos_h * step_forward - sin_h * step_left, axis=0)
     y = np.cumsum(sin_h * step_forward + cos_h * step_left, axis=0)
     return np.stack([x, y, headings], axis=1).reshape(-1, samples).T
+
+
+def linearised_increment_offsets(centre, states) -> np.ndarray:
+    """The inverse of :func:`compose_linearised_increments`: the offsets delta (d, S) with
+    ``compose_linearised_increments(centre, delta) == states`` for states (S, d), i.e.
+    delta = K^-1 (u(states) - u*), K^-1 the linearised composition at P* = ``centre``.
+
+        >>> centre = np.array([1.0, 0.0, 0.5, 2.0, 0.5, 1.0])
+        >>> delta = np.random.default_rng(0).normal(0.0, 0.1, (6, 3))
+        >>> np.allclose(linearised_increment_offsets(centre, compose_linearised_increments(centre, delta)), delta)
+        True
+    """
+    centre, states = np.asarray(centre, dtype=float), np.asarray(states, dtype=float)
+    samples = states.shape[0]
+
+    def increments(poses):  # (N - 1, 3, S): the step (forward, left) in the frame of the pose before, the turn
+        before, after = poses[:-1], poses[1:]
+        cos, sin = np.cos(before[:, 2]), np.sin(before[:, 2])
+        dx, dy = after[:, 0] - before[:, 0], after[:, 1] - before[:, 1]
+        return np.stack([cos * dx + sin * dy, -sin * dx + cos * dy, after[:, 2] - before[:, 2]], axis=1)
+
+    centre_poses = poses_from_vector(centre)[:, :, None]  # (N, 3, 1)
+    sampled_poses = np.moveaxis(poses_from_vector(states), 0, -1)  # (N, 3, S)
+    change = increments(sampled_poses) - increments(centre_poses)
+    change[:, 2] = (change[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
+    turns = np.cumsum(change[:, 2], axis=0)  # the heading offset of poses 1..N-1
+    turn_before = np.concatenate([np.zeros((1, samples)), turns[:-1]])
+    before = centre_poses[:-1, :, 0]
+    cos, sin = np.cos(before[:, 2])[:, None], np.sin(before[:, 2])[:, None]
+    step_x = (centre_poses[1:, 0] - centre_poses[:-1, 0])  # (N - 1, 1)
+    step_y = (centre_poses[1:, 1] - centre_poses[:-1, 1])
+    # d t_k = d t_{k-1} + R(theta*_{k-1}) d s_k + d theta_{k-1} perp(t*_k - t*_{k-1}), perp(x, y) = (-y, x)
+    x = np.cumsum(cos * change[:, 0] - sin * change[:, 1] - turn_before * step_y, axis=0)
+    y = np.cumsum(sin * change[:, 0] + cos * change[:, 1] + turn_before * step_x, axis=0)
+    return np.stack([x, y, turns], axis=1).reshape(-1, samples)
 
 
 def _position_selector(detections, dimension: int) -> np.ndarray:

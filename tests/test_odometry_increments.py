@@ -76,3 +76,7 @@ def test_unknown_coordinates_are_refused_and_configs_know_the_same_ones():
 
     assert set(experiment.SAMPLING_COORDINATES) == set(ptm.odometry.SAMPLING_COORDINATES)
     assert experiment.DEFAULTS["odometry"]["sampling_coordinates"] == ptm.OdometryModel().sampling_coordinates
+    with pytest.raises(ValueError, match="penalty_proposal must be one of"):
+        ptm.OdometryModel(penalty_proposal="tails")
+    assert set(experiment.PENALTY_PROPOSALS) == set(ptm.odometry.PENALTY_PROPOSALS)
+    assert experiment.DEFAULTS["odometry"]["penalty_proposal"] == ptm.OdometryModel().penalty_proposal

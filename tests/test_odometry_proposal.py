@@ -2,8 +2,10 @@
 
 Where the landmark-density penalty is active at the Laplace optimum P*, the
 estimate of log P(O | T) draws half its samples from a Laplace fit of
-N(P*, H^-1) exp(-Pen) (see :mod:`ptm.odometry`). These tests check the mixture
-density against dense linear algebra, that the estimate no longer depends on
+exp(-E - Pen) over all poses (or, as the committed results, of N(P*, H^-1) exp(-Pen)
+over the penalised positions; see :mod:`ptm.odometry`). These tests check that the
+penalised mode is a minimum, both mixture densities against dense linear algebra,
+that the two proposals estimate the same integral, that the estimate no longer depends on
 the common random numbers' seed where the penalty decides (the issue's
 7-detection loop, with a negative control: the old single-Gaussian proposal on
 the same loop), that its reported Monte-Carlo error is honest, and that the
@@ -24,14 +26,15 @@ import scipy.spatial.distance
 import scipy.stats
 
 import ptm
-from ptm.odometry import OdometryTerm, compose_linearised_increments
+from ptm.odometry import OdometryTerm, compose_linearised_increments, landmark_penalty, linearised_increment_offsets
 from ptm.pose_graph import poses_from_vector
 from test_odometry import square_loop_dataset
 
 SEEDS = range(5)
 # Measured (OPENBLAS_NUM_THREADS=1) on the loop below, ground-truth mass over seeds 0-4 at n_importance=100:
 #   single Gaussian N(P*, H^-1):  0.258-0.464 (spread 0.206) at P_max 10, 0.941-0.972 (0.031) at 30, 1.000 (0.000) at 100
-#   with the penalty component:   0.302-0.310 (spread 0.007) at P_max 10, 0.920-0.936 (0.016) at 30, 0.999 (0.000) at 100
+#   subspace penalty component:   0.302-0.310 (spread 0.007) at P_max 10, 0.920-0.936 (0.016) at 30, 0.999 (0.000) at 100
+#   full penalised mode (default): 0.302-0.324 (spread 0.022) at P_max 10, 0.927-0.937 (0.011) at 30, 0.999 (0.000) at 100
 SPREAD_TOLERANCE = 0.05
 
 
@@ -41,8 +44,8 @@ def issue_loop():
     return dataset.replace(odometry_cov=np.broadcast_to(np.diag([0.2**2, 0.2**2, 0.05**2]), (6, 3, 3)))
 
 
-def loop_model(max_penalty, seed, n_importance=100):
-    return ptm.OdometryModel(0.2, 0.05, 0.3, 3.0, max_penalty, n_importance=n_importance, seed=seed)
+def loop_model(max_penalty, seed, n_importance=100, **options):
+    return ptm.OdometryModel(0.2, 0.05, 0.3, 3.0, max_penalty, n_importance=n_importance, seed=seed, **options)
 
 
 @pytest.fixture(scope="module")
@@ -68,18 +71,19 @@ def test_ground_truth_mass_does_not_depend_on_the_importance_seed(loop_fits, max
 
 @pytest.mark.slow
 def test_negative_control_the_single_gaussian_proposal_fails_the_same_check(loop_fits, monkeypatch):
-    monkeypatch.setattr(OdometryTerm, "penalty_mixture", lambda self, fit, labels, centre_distance: None)
+    for proposal in ("penalised_mode", "penalty_mixture"):
+        monkeypatch.setattr(OdometryTerm, proposal, lambda self, fit, labels, centre_distance: None)
     masses = truth_masses(loop_fits, 10.0)
     assert np.ptp(masses) > 2 * SPREAD_TOLERANCE, masses
 
 
 @pytest.mark.parametrize("coordinates", ["poses", "increments"])
-def test_mixture_density_matches_dense_linear_algebra(coordinates):
+def test_subspace_mixture_density_matches_dense_linear_algebra(coordinates):
     # In the increments' coordinates a draw delta is placed at P(u* + K delta) (unit Jacobian): its
     # proposal density is the poses' one at P* + delta, its energy and penalty those of the placed state.
     dataset = issue_loop()
     term = loop_model(10.0, seed=0).bind(dataset).rebind(
-        ptm.OdometryModel(0.2, 0.05, 0.3, 3.0, 10.0, n_importance=100, seed=0, sampling_coordinates=coordinates))
+        loop_model(10.0, seed=0, sampling_coordinates=coordinates, penalty_proposal="subspace"))
     labels = np.array([0, 1, 2, 3, 4, 1, 2])  # detection 4 revisits place 0 but is labelled new: penalised
     topology = term.graph.topology(labels)
     fit = term.graph.fit(term.graph.dead_reckoning(), topology)
@@ -110,6 +114,77 @@ def test_mixture_density_matches_dense_linear_algebra(coordinates):
     log_norm = 0.5 * term.dimension * math.log(2 * math.pi) - 0.5 * fit.factor.log_det()
     np.testing.assert_allclose(log_weights + log_norm, expected, rtol=0, atol=1e-9)
     assert np.all(mixture.component_of[:50] == 0) and np.all(mixture.component_of[50:] == 1)
+
+
+def penalised_partition(coordinates, proposal="mode"):
+    """The loop's term and Laplace fit of a partition whose penalty is active at P* (detection 4 revisits place 0
+    but is labelled new), in the given sampling coordinates."""
+    term = loop_model(10.0, seed=0, sampling_coordinates=coordinates, penalty_proposal=proposal).bind(issue_loop())
+    labels = np.array([0, 1, 2, 3, 4, 1, 2])
+    return term, labels, term.fit(labels)
+
+
+@pytest.mark.parametrize("coordinates", ["poses", "increments"])
+def test_penalised_mode_is_a_minimum_of_energy_plus_penalty(coordinates):
+    term, labels, fit = penalised_partition(coordinates)
+    centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
+    mode = term.penalised_mode(fit, labels, centre_distance)
+    assert mode is not None and mode.shift > 0.5
+    separated = np.flatnonzero(labels[term._pair_first] != labels[term._pair_second])
+
+    def energy_plus_penalty(states):
+        positions = poses_from_vector(states)[..., :2]
+        return term.graph.energy(states, labels) + landmark_penalty(
+            positions, (term._pair_first[separated], term._pair_second[separated]), 3.0, 10.0)
+
+    optimum = mode.centres[1]
+    value = energy_plus_penalty(optimum[None])[0]
+    assert value < energy_plus_penalty(fit.x[None])[0] - 1.0  # the penalty moved it, downhill
+    step = 1e-5
+    gradient = (energy_plus_penalty(optimum + step * np.eye(term.dimension))
+                - energy_plus_penalty(optimum - step * np.eye(term.dimension))) / (2 * step)
+    assert np.max(np.abs(gradient)) < 1e-4
+    nearby = optimum + np.random.default_rng(0).normal(0.0, 1e-3, (200, term.dimension))
+    assert np.all(energy_plus_penalty(nearby) >= value - 1e-9)
+
+
+@pytest.mark.parametrize("coordinates", ["poses", "increments"])
+def test_mode_mixture_density_matches_dense_linear_algebra(coordinates):
+    # Component c places a draw delta ~ N(0, H_c^-1) around its centre in the sampling coordinates; the
+    # density of a state there is N(offset_c(state); 0, H_c^-1), the offset taken from each centre.
+    term, labels, fit = penalised_partition(coordinates)
+    centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
+    mode = term.penalised_mode(fit, labels, centre_distance)
+    samples = slice(0, 100)
+    log_weights = term.mode_mixture_log_weights(fit, mode, labels, centre_distance, samples)
+    centre_hessian = mode.hessians[0].toarray()
+    precisions = (centre_hessian, mode.hessians[1])
+    noise = term.noise_columns[:term.dimension, samples]
+    draws = [np.linalg.solve(np.linalg.cholesky(precision).T, noise) for precision in precisions]
+    # component 0 draws through the fit's structured factor: the same distribution, other numbers
+    draws[0] = fit.factor.sample(term.noise_columns[:, samples])[0]
+    place = (lambda centre, offsets: centre + offsets.T) if coordinates == "poses" else compose_linearised_increments
+    offset = ((lambda centre, states: states.T - centre[:, None]) if coordinates == "poses"
+              else linearised_increment_offsets)
+    states = np.concatenate([place(mode.centres[0], draws[0][:, :50]), place(mode.centres[1], draws[1][:, 50:])])
+    log_densities = [math.log(0.5) + scipy.stats.multivariate_normal(np.zeros(term.dimension),
+                                                                     np.linalg.inv(precision)).logpdf(
+                         offset(centre, states).T)
+                     for centre, precision in zip(mode.centres, precisions)]
+    expected = (-np.logaddexp(*log_densities) - term.graph.energy(states, labels)
+                - term.penalties(states, states.T - fit.x[:, None], fit.x, labels, centre_distance))
+    np.testing.assert_allclose(log_weights, expected, rtol=0, atol=1e-7)
+
+
+@pytest.mark.parametrize("coordinates", ["poses", "increments"])
+def test_both_penalty_proposals_estimate_the_same_integral(coordinates):
+    # 4 000 samples each on the penalised partition: within 4 combined standard errors
+    estimates = [penalised_partition(coordinates, proposal)[0].rebind(
+        loop_model(10.0, seed=3, n_importance=4000, sampling_coordinates=coordinates, penalty_proposal=proposal))
+        .evaluate([0, 1, 2, 3, 4, 1, 2]) for proposal in ptm.odometry.PENALTY_PROPOSALS]
+    difference = abs(estimates[0].log_likelihood - estimates[1].log_likelihood)
+    assert difference < 4 * math.hypot(estimates[0].standard_error, estimates[1].standard_error), estimates
+    assert estimates[0].laplace - estimates[0].log_likelihood > 3.0  # the penalty matters here
 
 
 def test_reported_standard_error_is_honest_where_the_penalty_is_active():

@@ -7,9 +7,10 @@ printed by the code at commit 4338877 (before the odometry evaluation lost its P
 OPENBLAS_NUM_THREADS=1: ``term.log_likelihood(labels)`` for the truth, all distinct, all one place and
 random partitions (``numpy.random.default_rng(len(name)).integers(0, 4, size=n)``) of three cases, which
 use the penalty mixture (60-90 % of these partitions), the banded + low-rank and the sparse factor, and
-per-step covariances with correlations. They sample in the poses' coordinates, as the committed results
-(their configs pin ``odometry.sampling_coordinates = "poses"``); the default is now the increments'
-(tests/test_odometry_increments.py).
+per-step covariances with correlations. They sample in the poses' coordinates with the subspace penalty proposal, as
+the committed results (their configs pin ``odometry.sampling_coordinates = "poses"`` and
+``penalty_proposal = "subspace"``); the defaults are now the increments' (tests/test_odometry_increments.py)
+and the full penalised mode (tests/test_odometry_proposal.py).
 
     python -m pytest tests/test_odometry_values.py -q
 """
@@ -21,7 +22,7 @@ import ptm
 from test_odometry import mixed_dataset, square_loop_dataset
 
 LOOP = dict(sigma_xy=0.5, sigma_theta=0.15, sigma_topology=0.5, penalty_radius=3.0, max_penalty=5.0,
-            n_importance=50, seed=0, sampling_coordinates="poses")
+            n_importance=50, seed=0, sampling_coordinates="poses", penalty_proposal="subspace")
 
 LOOP_VALUES = [
     ([0, 1, 2, 3, 0, 1, 2, 3], -12.022254966923885),
@@ -45,7 +46,7 @@ LOOP_SPARSE_VALUES = [
 ]
 
 CORRELATED = dict(sigma_topology=0.5, penalty_radius=6.0, max_penalty=100.0, n_importance=100, seed=3,
-                  sampling_coordinates="poses")
+                  sampling_coordinates="poses", penalty_proposal="subspace")
 
 CORRELATED_VALUES = [
     ([0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2], -76.11773926089514),

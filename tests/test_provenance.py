@@ -271,3 +271,13 @@ def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(t
     assert definitions({"sampling_coordinates": "poses"})[0] != definitions({})[0]
     with pytest.raises(ValueError, match="sampling_coordinates"):
         definitions({"sampling_coordinates": "world"})
+    # so was penalty_proposal: the rows computed before it are those pinned to "subspace"
+    pinned = experiment.expand_cells(experiment.parse_experiment(
+        {**CONFIG, "odometry": {**CONFIG["odometry"], "penalty_proposal": "subspace"}}), tmp_path)[0]
+    before_the_key = {**pinned, "settings": {**pinned["settings"], "odometry": {
+        key: value for key, value in pinned["settings"]["odometry"].items() if key != "penalty_proposal"}}}
+    before_the_key.pop("definition")
+    assert experiment._definition(before_the_key) == pinned["definition"]
+    assert definitions({"penalty_proposal": "subspace"})[0] != definitions({})[0]
+    with pytest.raises(ValueError, match="penalty_proposal"):
+        definitions({"penalty_proposal": "tails"})

@@ -133,7 +133,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
             sigma_xy=odometry["sigma_xy"], sigma_theta=odometry["sigma_theta"],
             sigma_topology=used["sigma_topology"], penalty_radius=used["penalty_radius"],
             max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
-            sampling_coordinates=odometry["sampling_coordinates"],
+            sampling_coordinates=odometry["sampling_coordinates"], penalty_proposal=odometry["penalty_proposal"],
         ))
         if odometry["tie_normaliser"]:
             if "detection_radius" not in dataset.meta:

@@ -55,6 +55,7 @@ METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_m
 MOVE_SETS = ("auto", "default", "paper", "guided")
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 SAMPLING_COORDINATES = ("increments", "poses")  # ptm.odometry.SAMPLING_COORDINATES (parsing imports no inference)
+PENALTY_PROPOSALS = ("mode", "subspace")  # ptm.odometry.PENALTY_PROPOSALS
 APPEARANCE_MODELS = ("joint", "independent")
 APPEARANCE_PRIOR_MEANS = ("global", "run")
 WORLD_GENERATORS = ("corridor_grid",)
@@ -108,6 +109,10 @@ DEFAULTS = {
         # between consecutive detections and composed; "poses": drawn around P* in the poses (the paper), which
         # degenerates on long routes (docs/model.md §3.3, erratum E12). The committed results pin "poses".
         "sampling_coordinates": "increments",
+        # "mode" (the default): where the penalty is active at P*, half the importance samples come from the
+        # Laplace fit of E + Pen over all poses; "subspace": from a fit over the penalised detections'
+        # positions only, the other poses following linearly (docs/model.md §3.3). Committed results pin "subspace".
+        "penalty_proposal": "mode",
     },
     "appearance": {
         # "independent": the paper's per-component model (the default: the better of the two in the predictive
@@ -255,7 +260,8 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: Keys added to DEFAULTS after results existed, with the value that reproduces what the code did before
 #: them: at that value a key stays out of a cell's definition, so adding an option does not make every
 #: existing row stale (a cell that sets another value is a new cell).
-_ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses"}
+_ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
+               ("odometry", "penalty_proposal"): "subspace"}
 _UNSET = object()
 
 
@@ -314,6 +320,8 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
     _check_choice(merged["inference"]["moves"], MOVE_SETS, f"{where} inference.moves", source)
     _check_choice(merged["odometry"]["sampling_coordinates"], SAMPLING_COORDINATES,
                   f"{where} odometry.sampling_coordinates", source)
+    _check_choice(merged["odometry"]["penalty_proposal"], PENALTY_PROPOSALS, f"{where} odometry.penalty_proposal",
+                  source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
     _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
     _check_choice(merged["appearance"]["prior_mean"], APPEARANCE_PRIOR_MEANS, f"{where} appearance.prior_mean", source)

@@ -47,7 +47,8 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
         built.append(ptm.OdometryModel(settings["sigma_xy"], settings["sigma_theta"], used["sigma_topology"],
                                        used["penalty_radius"], settings["max_penalty"],
                                        n_importance=settings["n_importance"], seed=seed,
-                                       sampling_coordinates=settings["sampling_coordinates"]))
+                                       sampling_coordinates=settings["sampling_coordinates"],
+                                       penalty_proposal=settings["penalty_proposal"]))
     share = calibration.places_per_detection(held_out)
     used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
                                  f"(held out) x n places")
