@@ -98,13 +98,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 import scipy.spatial.distance
 from scipy.special import logsumexp
 
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
 from .partitions import Partition
-from .pose_graph import SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, odometry_sqrt_information, poses_from_vector
+from .pose_graph import (SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, SparseFactor, odometry_sqrt_information,
+                         poses_from_vector)
 
 __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "PenalisedMode",
            "PENALTY_PROPOSALS", "SAMPLING_COORDINATES", "compose_linearised_increments",
@@ -115,8 +117,11 @@ SAMPLING_COORDINATES = ("poses", "increments")
 #: How the proposal accounts for the penalty (``OdometryModel.penalty_proposal``): a Laplace fit of E + Pen
 #: over all poses, or only over the penalised detections' positions with the rest following linearly.
 PENALTY_PROPOSALS = ("mode", "subspace")
-#: Iterations of the search for argmin (E + Pen) (:meth:`OdometryTerm.penalised_mode`).
+#: Iterations of the search for argmin (E + Pen) (:meth:`OdometryTerm.penalised_mode`), and the Newton
+#: decrement [nats] below which it stops: the centre of a proposal needs no more (and it converges only
+#: linearly on the Gauss-Newton Hessian, about ten times closer per iteration).
 PENALISED_MODE_ITERATIONS = 100
+PENALISED_MODE_TOLERANCE = 1e-3
 #: Bytes of one importance-sampling temporary (see ``OdometryTerm.sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
@@ -518,8 +523,9 @@ class OdometryTerm:
 
         P-dagger = argmin (E + Pen) is searched from P* (so it is a function of the partition alone) by
         Newton steps on the Gauss-Newton Hessian of E plus the positive semi-definite part of Pen's
-        (positive definite, so every step descends) with backtracking; the pairs counted are those of
-        different sets within the radius at each iterate. The component's precision H-dagger is that
+        (positive definite, so every step descends) with backtracking, until the predicted decrease is
+        below ``PENALISED_MODE_TOLERANCE``; the pairs counted are those of different sets within the
+        radius at each iterate. The Hessians are sparse (SuperLU). The component's precision H-dagger is that
         Hessian at P-dagger with Pen's exact Hessian where the sum stays positive definite.
         """
         if self.model.max_penalty == 0.0 or self.n < 2 or not len(self._penalised_pairs(centre_distance, labels)):
@@ -531,21 +537,23 @@ class OdometryTerm:
             penalty = self._penalty_at(x, labels)
             return linearisation.energy + penalty(x[positions].reshape(-1, 2)), linearisation, penalty
 
-        def hessian(linearisation, penalty, tangential):
-            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), tangential)
-            matrix = self.graph.hessian_matrix(fit.topology, linearisation.gauss_newton).toarray()
-            matrix[np.ix_(positions, positions)] += penalty_hessian
+        def hessian(linearisation, penalty, tangential):  # (the sparse Hessian, the gradient) of E + Pen
+            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), tangential,
+                                                               sparse=True)
+            embedded = scipy.sparse.csc_matrix((penalty_hessian.data, (positions[penalty_hessian.row],
+                                                                       positions[penalty_hessian.col])),
+                                               shape=(self.dimension, self.dimension))
             full_gradient = linearisation.gradient.copy()
             full_gradient[positions] += gradient
-            return matrix, full_gradient
+            return self.graph.hessian_matrix(fit.topology, linearisation.gauss_newton) + embedded, full_gradient
 
         x = fit.x
         value, linearisation, penalty = penalised(x)
         for _ in range(PENALISED_MODE_ITERATIONS):
             matrix, gradient = hessian(linearisation, penalty, tangential=False)
-            step = -_positive_definite_solve(matrix, gradient)
+            step = -SparseFactor(matrix).solve(gradient)
             slope = float(gradient @ step)
-            if slope > -1e-12 * (1.0 + abs(value)):
+            if -0.5 * slope < PENALISED_MODE_TOLERANCE:
                 break
             length = 1.0
             while length > 1e-10:
@@ -557,8 +565,6 @@ class OdometryTerm:
                 break
             x = x + length * step
             value, linearisation, penalty = candidate
-            if np.max(np.abs(length * step)) < 1e-9:
-                break
         centre_hessian = self.graph.hessian_matrix(fit.topology, self.graph.linearise(fit.x, fit.topology).gauss_newton)
         offset = self._offsets_from(fit.x, x[None, :])[:, 0]
         shift = math.sqrt(max(float(offset @ (centre_hessian @ offset)), 0.0))
@@ -567,16 +573,15 @@ class OdometryTerm:
         for tangential in (True, False):  # Pen's exact Hessian, else its positive semi-definite part
             matrix, _ = hessian(linearisation, penalty, tangential)
             try:
-                factor = np.linalg.cholesky(matrix)
+                factor = SparseFactor(matrix)
                 break
-            except np.linalg.LinAlgError:
+            except ValueError:
                 continue
         counts, components = self._component_shares()
         half_log_two_pi = 0.5 * self.dimension * math.log(2.0 * math.pi)
         return PenalisedMode(
-            centres=(fit.x, x), factors=(None, factor), hessians=(centre_hessian, matrix),
-            log_norms=np.array([half_log_two_pi - 0.5 * fit.factor.log_det(),
-                                half_log_two_pi - float(np.sum(np.log(np.diag(factor))))]),
+            centres=(fit.x, x), factors=(fit.factor, factor), hessians=(centre_hessian, matrix),
+            log_norms=np.array([half_log_two_pi - 0.5 * f.log_det() for f in (fit.factor, factor)]),
             log_alphas=np.log(np.array(counts) / sum(counts)), components=components, shift=shift)
 
     def mode_mixture_log_weights(self, fit: LaplaceFit, mode: "PenalisedMode", labels, centre_distance,
@@ -589,9 +594,7 @@ class OdometryTerm:
         for centre, component, factor in zip(mode.centres, mode.components, mode.factors):
             columns = slice(max(chunk.start, component.start), min(chunk.stop, component.stop))
             if columns.start < columns.stop:
-                noise = np.asfortranarray(self.noise_columns[:, columns])
-                offsets = (fit.factor.sample(noise)[0] if factor is None
-                           else _solve_triangular(factor.T, noise[:self.dimension], lower=False))
+                offsets, _ = factor.sample(np.asfortranarray(self.noise_columns[:, columns]))
                 states.append(self._placed(centre, offsets)[0])
         states = np.concatenate(states)
         log_densities = []
@@ -787,8 +790,8 @@ class PenalisedMode:
     each a Gaussian in the sampling coordinates around its centre."""
 
     centres: tuple  # (P*, P-dagger), (d,) each
-    factors: tuple  # (None: the fit's own factor of H, the lower Cholesky factor of H-dagger)
-    hessians: tuple  # (H at P*, the Gauss-Newton Hessian of E, sparse; H-dagger, dense (d, d))
+    factors: tuple  # (the fit's factor of H, a SparseFactor of H-dagger)
+    hessians: tuple  # sparse (d, d): H at P* (the Gauss-Newton Hessian of E) and H-dagger
     log_norms: np.ndarray  # (2,): d/2 log 2 pi - 1/2 log det H_c
     log_alphas: np.ndarray  # (2,): the share of the samples each component draws
     components: tuple  # slices of the samples of each component
@@ -908,10 +911,11 @@ class _PairPenalty:
         """Pen of the positions t (m, 2)."""
         return self.max_penalty * float(np.sum(self._separations(positions)[2] ** 3))
 
-    def derivatives(self, positions, tangential: bool = False):
+    def derivatives(self, positions, tangential: bool = False, sparse: bool = False):
         """Pen, its gradient (2m,) and its Hessian (2m, 2m) without the tangential part f'(d)/d (I - u u^T)
         of each pair, which is negative (as Gauss-Newton leaves out residual curvature): what is kept,
-        f''(d) u u^T per pair, is positive semi-definite; with ``tangential`` the exact Hessian."""
+        f''(d) u u^T per pair, is positive semi-definite; with ``tangential`` the exact Hessian. With
+        ``sparse`` the Hessian is a ``scipy.sparse.coo_matrix`` (duplicate entries to be summed)."""
         separation, distances, closeness = self._separations(positions)
         value = self.max_penalty * float(np.sum(closeness**3))
         units = separation / np.where(distances > 0.0, distances, np.inf)[:, None]
@@ -925,9 +929,15 @@ class _PairPenalty:
         if tangential:
             bend = slope / np.where(distances > 0.0, distances, np.inf)
             blocks += bend[:, None, None] * (np.eye(2) - units[:, :, None] * units[:, None, :])
-        hessian = np.bincount(self._hessian_entries, weights=np.concatenate([blocks, blocks, -blocks, -blocks]).ravel(),
-                              minlength=padded_size**2).reshape(padded_size, padded_size)
+        entries = np.concatenate([blocks, blocks, -blocks, -blocks]).ravel()
         size = 2 * self.rows
+        if sparse:  # the entries' flat indices into the padded matrix, without the origin's rows and columns
+            rows, cols = np.divmod(self._hessian_entries, padded_size)
+            kept = (rows < size) & (cols < size)
+            return value, gradient[:size], scipy.sparse.coo_matrix((entries[kept], (rows[kept], cols[kept])),
+                                                                   shape=(size, size))
+        hessian = np.bincount(self._hessian_entries, weights=entries,
+                              minlength=padded_size**2).reshape(padded_size, padded_size)
         return value, gradient[:size], hessian[:size, :size]
 
 

@@ -51,10 +51,10 @@ def synthetic_route_dataset(n: int, seed: int = 0, spacing: float = 5.0) -> ptm.
     return ptm.Dataset(odometry=odometry, signatures=signatures, labels=labels, true_poses=poses)
 
 
-def odometry_model(seed: int = 0, sampling_coordinates: str = "increments") -> ptm.OdometryModel:
+def odometry_model(seed: int = 0, **estimator) -> ptm.OdometryModel:
+    """The benchmark's model; ``estimator``: ``sampling_coordinates``, ``penalty_proposal`` (else the defaults)."""
     return ptm.OdometryModel(sigma_xy=0.1, sigma_theta=0.02, sigma_topology=0.3, penalty_radius=2.5,
-                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed,
-                             sampling_coordinates=sampling_coordinates)
+                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed, **estimator)
 
 
 def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
@@ -67,8 +67,10 @@ def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
     return out
 
 
-#: Metric-name suffix of each ``sampling_coordinates`` (the default's metrics keep their names).
-COORDINATE_SUFFIX = {"increments": "", "poses": "_poses"}
+#: The estimators compared, by metric-name suffix (the default's metrics keep their names): the paper's
+#: draws in the poses, and the penalty component fitted over the penalised positions only.
+ESTIMATOR_VARIANTS = {"": {}, "_poses": {"sampling_coordinates": "poses"},
+                      "_subspace": {"penalty_proposal": "subspace"}}
 
 
 def odometry_rows(args) -> list[dict]:
@@ -76,33 +78,32 @@ def odometry_rows(args) -> list[dict]:
     evaluations = max(10, int(60 * args.scale))
     for n in EVALUATION_SIZES:
         dataset = synthetic_route_dataset(n)
-        # one term per coordinates (no shared fits), the partitions evaluated alternately so that both
+        # one term per estimator (no shared fits), the partitions evaluated alternately so that all
         # see the same load
-        terms = {coordinates: odometry_model(sampling_coordinates=coordinates).bind(dataset)
-                 for coordinates in COORDINATE_SUFFIX}
-        wall = {coordinates: [] for coordinates in terms}
-        cpu = {coordinates: [] for coordinates in terms}
+        terms = {suffix: odometry_model(**estimator).bind(dataset) for suffix, estimator in ESTIMATOR_VARIANTS.items()}
+        wall = {suffix: [] for suffix in terms}
+        cpu = {suffix: [] for suffix in terms}
         for term in terms.values():
             term.evaluate(dataset.labels)  # the chain's current state (no longer a warm start: kept for comparability)
         for labels in neighbouring_partitions(dataset.labels, evaluations, np.random.default_rng(n)):
-            for coordinates, term in terms.items():
+            for suffix, term in terms.items():
                 started_wall, started_cpu = time.perf_counter(), time.process_time()
                 term.evaluate(labels)
-                wall[coordinates].append(time.perf_counter() - started_wall)
-                cpu[coordinates].append(time.process_time() - started_cpu)
-        for coordinates, term in terms.items():
-            diagnostics, suffix = term.diagnostics(), COORDINATE_SUFFIX[coordinates]
+                wall[suffix].append(time.perf_counter() - started_wall)
+                cpu[suffix].append(time.process_time() - started_cpu)
+        for suffix, term in terms.items():
+            diagnostics = term.diagnostics()
             rows += [
                 {"section": "odometry", "metric": f"evaluation_median_ms_cache_miss{suffix}", "n": n,
-                 "value": 1e3 * float(np.median(wall[coordinates])), "unit": "ms"},
+                 "value": 1e3 * float(np.median(wall[suffix])), "unit": "ms"},
                 {"section": "odometry", "metric": f"evaluation_median_cpu_ms_cache_miss{suffix}", "n": n,
-                 "value": 1e3 * float(np.median(cpu[coordinates])), "unit": "ms (process CPU)"},
+                 "value": 1e3 * float(np.median(cpu[suffix])), "unit": "ms (process CPU)"},
                 {"section": "odometry", "metric": f"importance_ess_mean{suffix}", "n": n,
                  "value": diagnostics["ess_mean"], "unit": f"of {N_IMPORTANCE}"},
                 {"section": "odometry", "metric": f"mc_standard_error_mean{suffix}", "n": n,
                  "value": diagnostics["mc_standard_error_mean"], "unit": "nats"},
             ]
-        diagnostics = terms["increments"].diagnostics()  # the fits are the same in both
+        diagnostics = terms[""].diagnostics()  # the fits are the same in all
         rows += [
             {"section": "odometry", "metric": "newton_iterations_mean", "n": n,
              "value": diagnostics["lm_iterations_mean"], "unit": "iterations"},
