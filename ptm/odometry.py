@@ -525,8 +525,8 @@ class OdometryTerm:
         Newton steps on the Gauss-Newton Hessian of E plus the positive semi-definite part of Pen's
         (positive definite, so every step descends) with backtracking, until the predicted decrease is
         below ``PENALISED_MODE_TOLERANCE``; the pairs counted are those of different sets within the
-        radius at each iterate. The Hessians are sparse (SuperLU). The component's precision H-dagger is that
-        Hessian at P-dagger with Pen's exact Hessian where the sum stays positive definite.
+        radius at each iterate. The component's precision H-dagger is that Hessian at P-dagger (at least
+        the Gauss-Newton Hessian of E, so never flatter than E allows). The Hessians are sparse (SuperLU).
         """
         if self.model.max_penalty == 0.0 or self.n < 2 or not len(self._penalised_pairs(centre_distance, labels)):
             return None
@@ -570,13 +570,11 @@ class OdometryTerm:
         shift = math.sqrt(max(float(offset @ (centre_hessian @ offset)), 0.0))
         if shift < 1e-9:  # the penalty does not move the mode
             return None
-        for tangential in (True, False):  # Pen's exact Hessian, else its positive semi-definite part
-            matrix, _ = hessian(linearisation, penalty, tangential)
-            try:
-                factor = SparseFactor(matrix)
-                break
-            except ValueError:
-                continue
+        # Pen's positive semi-definite part, not its exact Hessian: the tangential part can leave H-dagger
+        # barely positive definite, with draws hundreds of metres long in its flat direction (it did, on a
+        # 95-detection grid: an estimate of +129 000 nats)
+        matrix, _ = hessian(linearisation, penalty, tangential=False)
+        factor = SparseFactor(matrix)
         counts, components = self._component_shares()
         half_log_two_pi = 0.5 * self.dimension * math.log(2.0 * math.pi)
         return PenalisedMode(
