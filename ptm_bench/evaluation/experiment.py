@@ -107,7 +107,7 @@ DEFAULTS = {
         "tie_normaliser": False,
         # "increments" (the default): importance samples of the odometry integral drawn in the relative poses
         # between consecutive detections and composed; "poses": drawn around P* in the poses (the paper), which
-        # degenerates on long routes (docs/model.md §3.3, erratum E12). The committed results pin "poses".
+        # degenerates on long routes (docs/model.md §3.3, erratum E12). Committed results run before pin "poses".
         "sampling_coordinates": "increments",
         # "mode" (the default): where the penalty is active at P*, half the importance samples come from the
         # Laplace fit of E + Pen over all poses; "subspace": from a fit over the penalised detections'
