@@ -247,37 +247,25 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     assert expected.log_likelihood(plain.partition(scored.labels)) > 0  # merges gain: the lean to all-distinct is gone
 
 
-def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path):
-    def definitions(odometry):
+@pytest.mark.parametrize("key, old_value, other_value, invalid, refusal", [
+    ("tie_normaliser", False, True, 1, "tie_normaliser must be true or false"),
+    ("sampling_coordinates", "poses", "increments", "world", "sampling_coordinates"),  # added with a new default
+    ("penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
+])
+def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, key, old_value,
+                                                                               other_value, invalid, refusal):
+    def cells(odometry):
         config = {**CONFIG, "odometry": {**CONFIG["odometry"], **odometry}}
-        return [cell["definition"] for cell in experiment.expand_cells(experiment.parse_experiment(config), tmp_path)]
+        return experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(config)), tmp_path)
 
-    cell = experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(CONFIG)), tmp_path)[0]
-    before_the_key = {**cell, "settings": {**cell["settings"], "odometry": {
-        key: value for key, value in cell["settings"]["odometry"].items() if key != "tie_normaliser"}}}
-    before_the_key.pop("definition")
-    assert experiment._definition(before_the_key) == cell["definition"]   # rows computed before the key stay fresh
-    assert definitions({"tie_normaliser": False}) == definitions({})
-    assert definitions({"tie_normaliser": True})[0] != definitions({})[0]   # the inference cell changes
-    with pytest.raises(ValueError, match="tie_normaliser must be true or false"):
-        definitions({"tie_normaliser": 1})
-    # sampling_coordinates was added with a new default: the rows computed before it are those pinned to "poses"
-    pinned = experiment.expand_cells(experiment.parse_experiment(
-        {**CONFIG, "odometry": {**CONFIG["odometry"], "sampling_coordinates": "poses"}}), tmp_path)[0]
+    # the rows computed before the key are those of a config pinned to its old value: they stay fresh
+    pinned = cells({key: old_value})[0]
     before_the_key = {**pinned, "settings": {**pinned["settings"], "odometry": {
-        key: value for key, value in pinned["settings"]["odometry"].items() if key != "sampling_coordinates"}}}
+        name: value for name, value in pinned["settings"]["odometry"].items() if name != key}}}
     before_the_key.pop("definition")
     assert experiment._definition(before_the_key) == pinned["definition"]
-    assert definitions({"sampling_coordinates": "poses"})[0] != definitions({})[0]
-    with pytest.raises(ValueError, match="sampling_coordinates"):
-        definitions({"sampling_coordinates": "world"})
-    # so was penalty_proposal: the rows computed before it are those pinned to "subspace"
-    pinned = experiment.expand_cells(experiment.parse_experiment(
-        {**CONFIG, "odometry": {**CONFIG["odometry"], "penalty_proposal": "subspace"}}), tmp_path)[0]
-    before_the_key = {**pinned, "settings": {**pinned["settings"], "odometry": {
-        key: value for key, value in pinned["settings"]["odometry"].items() if key != "penalty_proposal"}}}
-    before_the_key.pop("definition")
-    assert experiment._definition(before_the_key) == pinned["definition"]
-    assert definitions({"penalty_proposal": "subspace"})[0] != definitions({})[0]
-    with pytest.raises(ValueError, match="penalty_proposal"):
-        definitions({"penalty_proposal": "tails"})
+    assert pinned["definition"] != cells({key: other_value})[0]["definition"]   # the inference cell changes
+    default_is_old = experiment.DEFAULTS["odometry"][key] == old_value
+    assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
+    with pytest.raises(ValueError, match=refusal):
+        cells({key: invalid})
