@@ -483,16 +483,12 @@ class OdometryTerm:
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
         centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
-        if self.model.penalty_proposal == "mode":
-            mixture = self.penalised_mode(fit, labels, centre_distance)
-            log_weights = np.concatenate([
-                self.mode_mixture_log_weights(fit, mixture, labels, centre_distance, chunk)
-                for chunk in self.sample_chunks
-            ]) if mixture is not None else None
-        else:
+        if self.model.penalty_proposal == "mode" and (
+                mixture := self.penalised_mode(fit, labels, centre_distance)) is not None:
+            log_weights = np.concatenate([self.mode_mixture_log_weights(fit, mixture, labels, centre_distance, chunk)
+                                          for chunk in self.sample_chunks])
+        else:  # no active pair for "mode" (then also none for "subspace", whose mixture is None)
             mixture = self.penalty_mixture(fit, labels, centre_distance)
-            log_weights = None
-        if log_weights is None:
             log_weights = log_proposal_norm + np.concatenate([
                 self.log_weight_terms(fit, labels, centre_distance, mixture, chunk) for chunk in self.sample_chunks
             ])
@@ -537,9 +533,8 @@ class OdometryTerm:
             penalty = self._penalty_at(x, labels)
             return linearisation.energy + penalty(x[positions].reshape(-1, 2)), linearisation, penalty
 
-        def hessian(linearisation, penalty, tangential):  # (the sparse Hessian, the gradient) of E + Pen
-            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), tangential,
-                                                               sparse=True)
+        def hessian(linearisation, penalty):  # the sparse Hessian (Pen's positive semi-definite part) and gradient
+            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), sparse=True)
             embedded = scipy.sparse.csc_matrix((penalty_hessian.data, (positions[penalty_hessian.row],
                                                                        positions[penalty_hessian.col])),
                                                shape=(self.dimension, self.dimension))
@@ -550,8 +545,9 @@ class OdometryTerm:
         x = fit.x
         value, linearisation, penalty = penalised(x)
         for _ in range(PENALISED_MODE_ITERATIONS):
-            matrix, gradient = hessian(linearisation, penalty, tangential=False)
-            step = -SparseFactor(matrix).solve(gradient)
+            matrix, gradient = hessian(linearisation, penalty)
+            factor = SparseFactor(matrix)
+            step = -factor.solve(gradient)
             slope = float(gradient @ step)
             if -0.5 * slope < PENALISED_MODE_TOLERANCE:
                 break
@@ -565,16 +561,17 @@ class OdometryTerm:
                 break
             x = x + length * step
             value, linearisation, penalty = candidate
+        else:  # out of iterations after a step: the Hessian at the last iterate
+            matrix, _ = hessian(linearisation, penalty)
+            factor = SparseFactor(matrix)
         centre_hessian = self.graph.hessian_matrix(fit.topology, self.graph.linearise(fit.x, fit.topology).gauss_newton)
         offset = self._offsets_from(fit.x, x[None, :])[:, 0]
         shift = math.sqrt(max(float(offset @ (centre_hessian @ offset)), 0.0))
         if shift < 1e-9:  # the penalty does not move the mode
             return None
-        # Pen's positive semi-definite part, not its exact Hessian: the tangential part can leave H-dagger
-        # barely positive definite, with draws hundreds of metres long in its flat direction (it did, on a
-        # 95-detection grid: an estimate of +129 000 nats)
-        matrix, _ = hessian(linearisation, penalty, tangential=False)
-        factor = SparseFactor(matrix)
+        # H-dagger keeps Pen's positive semi-definite part, not its exact Hessian: the tangential part can
+        # leave it barely positive definite, with draws hundreds of metres long in its flat direction (it
+        # did, on a 95-detection grid: an estimate of +129 000 nats)
         counts, components = self._component_shares()
         half_log_two_pi = 0.5 * self.dimension * math.log(2.0 * math.pi)
         return PenalisedMode(
