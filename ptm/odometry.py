@@ -105,8 +105,8 @@ from scipy.special import logsumexp
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
 from .partitions import Partition
-from .pose_graph import (SPARSE_ABOVE_DIMENSION, LaplaceFit, PoseGraph, SparseFactor, odometry_sqrt_information,
-                         poses_from_vector)
+from .pose_graph import (SPARSE_ABOVE_DIMENSION, DenseFactor, LaplaceFit, PoseGraph, SparseFactor,
+                         odometry_sqrt_information, poses_from_vector)
 
 __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "PenalisedMode",
            "PENALTY_PROPOSALS", "SAMPLING_COORDINATES", "compose_linearised_increments",
@@ -122,6 +122,9 @@ PENALTY_PROPOSALS = ("mode", "subspace")
 #: linearly on the Gauss-Newton Hessian, about ten times closer per iteration).
 PENALISED_MODE_ITERATIONS = 100
 PENALISED_MODE_TOLERANCE = 1e-3
+#: Up to this many variables d the penalised mode's Hessians are dense (LAPACK), above it sparse (SuperLU):
+#: at N = 9 the sparse matrices' construction cost four times the rest of an evaluation.
+DENSE_MODE_DIMENSION = 150
 #: Bytes of one importance-sampling temporary (see ``OdometryTerm.sample_chunks``).
 IMPORTANCE_CHUNK_BYTES = 128 * 1024
 #: Share of the samples the defensive component N(P*, H^-1) keeps when the penalty component is used.
@@ -522,7 +525,8 @@ class OdometryTerm:
         (positive definite, so every step descends) with backtracking, until the predicted decrease is
         below ``PENALISED_MODE_TOLERANCE``; the pairs counted are those of different sets within the
         radius at each iterate. The component's precision H-dagger is that Hessian at P-dagger (at least
-        the Gauss-Newton Hessian of E, so never flatter than E allows). The Hessians are sparse (SuperLU).
+        the Gauss-Newton Hessian of E, so never flatter than E allows). The Hessians are dense up to
+        ``DENSE_MODE_DIMENSION`` variables, sparse (SuperLU) above.
         """
         if self.model.max_penalty == 0.0 or self.n < 2 or not len(self._penalised_pairs(centre_distance, labels)):
             return None
@@ -533,20 +537,29 @@ class OdometryTerm:
             penalty = self._penalty_at(x, labels)
             return linearisation.energy + penalty(x[positions].reshape(-1, 2)), linearisation, penalty
 
-        def hessian(linearisation, penalty):  # the sparse Hessian (Pen's positive semi-definite part) and gradient
-            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2), sparse=True)
-            embedded = scipy.sparse.csc_matrix((penalty_hessian.data, (positions[penalty_hessian.row],
-                                                                       positions[penalty_hessian.col])),
-                                               shape=(self.dimension, self.dimension))
+        dense = self.dimension <= DENSE_MODE_DIMENSION
+        factorise = DenseFactor if dense else SparseFactor
+
+        def hessian(linearisation, penalty):  # the Hessian (Pen's positive semi-definite part) and the gradient
+            _, gradient, penalty_hessian = penalty.derivatives(linearisation.x[positions].reshape(-1, 2),
+                                                               sparse=not dense)
+            matrix = self.graph.hessian_matrix(fit.topology, linearisation.gauss_newton)
+            if dense:
+                matrix = matrix.toarray()
+                matrix[np.ix_(positions, positions)] += penalty_hessian
+            else:
+                matrix = matrix + scipy.sparse.csc_matrix(
+                    (penalty_hessian.data, (positions[penalty_hessian.row], positions[penalty_hessian.col])),
+                    shape=(self.dimension, self.dimension))
             full_gradient = linearisation.gradient.copy()
             full_gradient[positions] += gradient
-            return self.graph.hessian_matrix(fit.topology, linearisation.gauss_newton) + embedded, full_gradient
+            return matrix, full_gradient
 
         x = fit.x
         value, linearisation, penalty = penalised(x)
         for _ in range(PENALISED_MODE_ITERATIONS):
             matrix, gradient = hessian(linearisation, penalty)
-            factor = SparseFactor(matrix)
+            factor = factorise(matrix)
             step = -factor.solve(gradient)
             slope = float(gradient @ step)
             if -0.5 * slope < PENALISED_MODE_TOLERANCE:
@@ -563,7 +576,7 @@ class OdometryTerm:
             value, linearisation, penalty = candidate
         else:  # out of iterations after a step: the Hessian at the last iterate
             matrix, _ = hessian(linearisation, penalty)
-            factor = SparseFactor(matrix)
+            factor = factorise(matrix)
         centre_hessian = self.graph.hessian_matrix(fit.topology, self.graph.linearise(fit.x, fit.topology).gauss_newton)
         offset = self._offsets_from(fit.x, x[None, :])[:, 0]
         shift = math.sqrt(max(float(offset @ (centre_hessian @ offset)), 0.0))
@@ -785,8 +798,8 @@ class PenalisedMode:
     each a Gaussian in the sampling coordinates around its centre."""
 
     centres: tuple  # (P*, P-dagger), (d,) each
-    factors: tuple  # (the fit's factor of H, a SparseFactor of H-dagger)
-    hessians: tuple  # sparse (d, d): H at P* (the Gauss-Newton Hessian of E) and H-dagger
+    factors: tuple  # (the fit's factor of H, a DenseFactor or SparseFactor of H-dagger)
+    hessians: tuple  # (d, d): H at P* (the Gauss-Newton Hessian of E, sparse) and H-dagger (dense or sparse)
     log_norms: np.ndarray  # (2,): d/2 log 2 pi - 1/2 log det H_c
     log_alphas: np.ndarray  # (2,): the share of the samples each component draws
     components: tuple  # slices of the samples of each component

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse
 import scipy.spatial.distance
 import scipy.stats
 
@@ -150,6 +151,20 @@ def test_penalised_mode_is_a_minimum_of_energy_plus_penalty(coordinates):
     assert np.all(energy_plus_penalty(nearby) >= value - 1e-9)
 
 
+def test_dense_and_sparse_penalised_modes_agree(monkeypatch):
+    # small d takes LAPACK, large d SuperLU: the same P-dagger and H-dagger either way
+    term, labels, fit = penalised_partition("increments")
+    centre_distance = scipy.spatial.distance.pdist(poses_from_vector(fit.x)[:, :2])
+    dense = term.penalised_mode(fit, labels, centre_distance)
+    monkeypatch.setattr(ptm.odometry, "DENSE_MODE_DIMENSION", 0)
+    sparse = term.penalised_mode(fit, labels, centre_distance)
+    assert isinstance(dense.factors[1], ptm.pose_graph.DenseFactor)
+    assert isinstance(sparse.factors[1], ptm.pose_graph.SparseFactor)
+    np.testing.assert_allclose(dense.centres[1], sparse.centres[1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(dense.hessians[1], sparse.hessians[1].toarray(), rtol=1e-12, atol=1e-9)
+    assert dense.log_norms == pytest.approx(sparse.log_norms, rel=1e-12)
+
+
 @pytest.mark.parametrize("coordinates", ["poses", "increments"])
 def test_mode_mixture_density_matches_dense_linear_algebra(coordinates):
     # Component c places a draw delta ~ N(0, H_c^-1) around its centre in the sampling coordinates; the
@@ -159,7 +174,7 @@ def test_mode_mixture_density_matches_dense_linear_algebra(coordinates):
     mode = term.penalised_mode(fit, labels, centre_distance)
     samples = slice(0, 100)
     log_weights = term.mode_mixture_log_weights(fit, mode, labels, centre_distance, samples)
-    precisions = [hessian.toarray() for hessian in mode.hessians]
+    precisions = [hessian.toarray() if scipy.sparse.issparse(hessian) else hessian for hessian in mode.hessians]
     draws = [factor.sample(term.noise_columns[:, samples])[0] for factor in mode.factors]
     for factor, precision in zip(mode.factors, precisions):  # each factor draws from N(0, its precision^-1)
         assert factor.log_det() == pytest.approx(np.linalg.slogdet(precision)[1], rel=1e-10)

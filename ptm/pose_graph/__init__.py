@@ -35,7 +35,7 @@ One module per concept:
     (True, 0.0335, 61.84)
 """
 
-from .factorisation import BandedLowRankFactor, HessianLayout, SparseFactor
+from .factorisation import BandedLowRankFactor, DenseFactor, HessianLayout, SparseFactor
 from .residuals import (StepFrames, StepInformation, odometry_jacobian_blocks, odometry_residuals,
                         odometry_second_order_blocks, odometry_sqrt_information, poses_from_vector)
 from .solver import SPARSE_ABOVE_DIMENSION, LaplaceFit, Linearisation, PoseGraph
@@ -49,6 +49,7 @@ __all__ = [
     "MemberSums",
     "BandedLowRankFactor",
     "SparseFactor",
+    "DenseFactor",
     "HessianLayout",
     "StepFrames",
     "StepInformation",

@@ -209,6 +209,33 @@ class SparseFactor:
         return offsets, 0.5 * np.einsum("ds,ds->s", noise, noise)
 
 
+class DenseFactor:
+    """H = L L^T of a small dense symmetric positive-definite matrix (LAPACK Cholesky), with the interface of
+    :class:`SparseFactor`, for sizes where sparse algebra costs more in overhead than it saves.
+
+    Raises ``ValueError`` when the matrix is not positive definite.
+    """
+
+    def __init__(self, matrix):
+        try:
+            self.lower = np.linalg.cholesky(np.asarray(matrix, dtype=float))
+        except np.linalg.LinAlgError as error:
+            raise ValueError("the matrix is not positive definite") from error
+
+    def solve(self, rhs) -> np.ndarray:
+        return scipy.linalg.cho_solve((self.lower, True), rhs)
+
+    def log_det(self) -> float:
+        return 2.0 * float(np.sum(np.log(np.diag(self.lower))))
+
+    def sample(self, noise_columns) -> tuple[np.ndarray, np.ndarray]:
+        """Offsets L^-T eps_s ~ N(0, H^-1) as columns (d, S) from the first d rows of ``noise_columns``,
+        and 1/2 delta_s^T H delta_s = 1/2 |eps_s|^2 for each."""
+        noise = noise_columns[: len(self.lower)]
+        offsets = scipy.linalg.solve_triangular(self.lower, noise, lower=True, trans="T")
+        return offsets, 0.5 * np.einsum("ds,ds->s", noise, noise)
+
+
 def _position_index(coordinates) -> np.ndarray:
     """The index among the x and y coordinates of the x or y coordinate ``coordinates`` (3i + a -> 2i + a)."""
     return coordinates - coordinates // 3
