@@ -105,6 +105,7 @@ from scipy.special import logsumexp
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
 from .partitions import Partition
+from .se2 import relative_pose, wrap_angle
 from .pose_graph import (SPARSE_ABOVE_DIMENSION, DenseFactor, LaplaceFit, PoseGraph, SparseFactor,
                          odometry_sqrt_information, poses_from_vector)
 
@@ -858,16 +859,12 @@ def linearised_increment_offsets(centre, states) -> np.ndarray:
     centre, states = np.asarray(centre, dtype=float), np.asarray(states, dtype=float)
     samples = states.shape[0]
 
-    def increments(poses):  # (N - 1, 3, S): the step (forward, left) in the frame of the pose before, the turn
-        before, after = poses[:-1], poses[1:]
-        cos, sin = np.cos(before[:, 2]), np.sin(before[:, 2])
-        dx, dy = after[:, 0] - before[:, 0], after[:, 1] - before[:, 1]
-        return np.stack([cos * dx + sin * dy, -sin * dx + cos * dy, after[:, 2] - before[:, 2]], axis=1)
-
     centre_poses = poses_from_vector(centre)[:, :, None]  # (N, 3, 1)
-    sampled_poses = np.moveaxis(poses_from_vector(states), 0, -1)  # (N, 3, S)
-    change = increments(sampled_poses) - increments(centre_poses)
-    change[:, 2] = (change[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
+    sampled_poses = poses_from_vector(states)  # (S, N, 3)
+    # u(states) - u*: (N - 1, 3, S), the step in the frame of the pose before and the turn
+    change = np.moveaxis(relative_pose(sampled_poses[:, :-1], sampled_poses[:, 1:])
+                         - relative_pose(centre_poses[:-1, :, 0], centre_poses[1:, :, 0]), 0, -1)
+    change[:, 2] = wrap_angle(change[:, 2])
     turns = np.cumsum(change[:, 2], axis=0)  # the heading offset of poses 1..N-1
     turn_before = np.concatenate([np.zeros((1, samples)), turns[:-1]])
     before = centre_poses[:-1, :, 0]
