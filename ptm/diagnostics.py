@@ -16,6 +16,12 @@ updated incrementally, so it drifts in the last digits) counts as constant
 (R-hat 1, every draw effective), and half-chains that are each constant at
 different values never mixed (R-hat infinite, one effective draw per half-chain).
 
+Independent chains *agree* (:func:`chains_agree`) when the split R-hat of
+log P and of the number of places are at most ``AGREEMENT_RHAT`` and every two
+chains' co-assignment matrices are within ``AGREEMENT_COASSIGNMENT`` of each
+other (max abs): the samplers extend chains that do not (``max_doublings``)
+and the harness warns about results that still do not.
+
     >>> traces = np.random.default_rng(0).normal(size=(4, 1000))
     >>> round(split_rhat(traces), 2), effective_sample_size(traces) > 3000
     (1.0, True)
@@ -27,7 +33,15 @@ import warnings
 
 import numpy as np
 
-__all__ = ["split_rhat", "effective_sample_size", "import_arviz"]
+__all__ = ["split_rhat", "effective_sample_size", "chains_agree", "import_arviz", "AGREEMENT_RHAT",
+           "AGREEMENT_COASSIGNMENT"]
+
+#: The largest split R-hat (of log P and of the number of places) at which chains agree.
+AGREEMENT_RHAT = 1.05
+#: The largest difference (max abs) between two chains' co-assignment matrices at which they agree.
+AGREEMENT_COASSIGNMENT = 0.05
+#: The diagnostics :func:`chains_agree` reads.
+AGREEMENT_DIAGNOSTICS = ("rhat_log_prob", "rhat_num_places", "coassignment_max_difference")
 
 
 def _traces(traces) -> np.ndarray:
@@ -86,3 +100,20 @@ def effective_sample_size(traces) -> float:
     if _never_mixed(halves):
         return float(halves.shape[0])
     return float(import_arviz().ess(traces, method="bulk"))
+
+
+def chains_agree(diagnostics: dict) -> bool | None:
+    """Whether a sampler's independent chains agree (module docstring), or None when ``diagnostics`` lack one
+    of ``AGREEMENT_DIAGNOSTICS`` (one chain, the exact posterior).
+
+        >>> chains_agree({"rhat_log_prob": 1.01, "rhat_num_places": 1.0, "coassignment_max_difference": 0.02})
+        True
+        >>> chains_agree({"rhat_log_prob": 1.01, "rhat_num_places": 1.0, "coassignment_max_difference": 0.3})
+        False
+    """
+    reached = [diagnostics.get(name) for name in AGREEMENT_DIAGNOSTICS]
+    if any(value is None for value in reached):
+        return None
+    rhat_log_prob, rhat_num_places, coassignment = reached
+    return bool(rhat_log_prob <= AGREEMENT_RHAT and rhat_num_places <= AGREEMENT_RHAT
+                and coassignment <= AGREEMENT_COASSIGNMENT)

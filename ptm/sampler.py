@@ -17,8 +17,9 @@ which is beta (global(T') - global(T)) without a surrogate.
 Several chains start from dispersed partitions (all distinct, all one place,
 random), run from seeds spawned from one root, and are pooled; split R-hat
 and effective sample sizes of log P and of the number of places are reported,
-and the largest difference between two chains' co-assignment matrices.
-``init`` may be a previous PTM over fewer detections: the chains then start
+and the largest difference between two chains' co-assignment matrices. With
+``max_doublings`` chains that disagree by those measures are run on, twice as
+long each time (:func:`run_chains`). ``init`` may be a previous PTM over fewer detections: the chains then start
 from its most probable topologies, each new detection placed by a draw from
 its conditional under the cheap terms (incremental mapping, docs/model.md §3.7).
 
@@ -39,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .diagnostics import effective_sample_size, split_rhat
+from .diagnostics import chains_agree, effective_sample_size, split_rhat
 from .moves import (GibbsReassign, GuidedSplitMerge, MapReassign, SplitMerge, apply_proposal, initial_state,
                     proposed_log_cheap, proposed_partition)
 from ._validation import count
@@ -48,7 +49,7 @@ from .result import PTM
 from .surrogate import OdometrySurrogate
 
 __all__ = ["mcmc", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
-           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder"]
+           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder", "run_chains"]
 
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 #: Warm-up steps per detection of :func:`guided_options` (:func:`warm_up_start`).
@@ -85,7 +86,7 @@ def guided_options(posterior, delayed_acceptance: bool = True) -> dict:
 
 
 def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, chains: int = 1,
-         init=None, moves=None, delayed_acceptance=False, warm_up: int = 0) -> PTM:
+         init=None, moves=None, delayed_acceptance=False, warm_up: int = 0, max_doublings: int = 0) -> PTM:
     """Sample the posterior over topologies; return the pooled histogram as a PTM.
 
     Parameters
@@ -114,35 +115,79 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
         ``delayed_acceptance``, half of them on its approximate odometry term):
         the chains then enter the full posterior near its bulk instead of from
         the dispersed extremes.
+    max_doublings : int
+        While several chains disagree (:func:`ptm.diagnostics.chains_agree`),
+        double the samples kept per chain, at most this many times
+        (:func:`run_chains`); ``diagnostics["doublings"]`` says how many were needed.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
     thin = count("thin", thin, minimum=1)
     chains = count("chains", chains, minimum=1)
     warm_up = count("warm_up", warm_up, minimum=0)
+    max_doublings = count("max_doublings", max_doublings, minimum=0)
     mixture = MoveMixture(moves if moves is not None else default_moves())
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    recorder = SampleRecorder(chains, n_samples)
     started = time.perf_counter()
+    runners = []
     for chain, chain_seed in enumerate(root.spawn(chains)):
         rng = np.random.default_rng(chain_seed)
         labels = start_labels(posterior, init, chain, rng)
         if warm_up:
             surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
             labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
-        state = initial_state(posterior, labels)
-        for step in range(burn_in + n_samples * thin):
-            state, _ = mixture.step(posterior, state, rng, delayed_acceptance=delayed_acceptance)
-            kept, remainder = divmod(step - burn_in + 1, thin)
-            if step >= burn_in and remainder == 0:
-                recorder.keep(chain, kept - 1, state)
-        recorder.flush()
+        runners.append(_Chain(posterior, initial_state(posterior, labels), rng, mixture, delayed_acceptance))
+    recorder, doublings = run_chains(runners, n_samples, burn_in, thin, max_doublings)
     wall = time.perf_counter() - started
-    steps = chains * (burn_in + n_samples * thin)
-    diagnostics = {"chains": chains, "steps": steps, "samples": chains * n_samples, "wall_s": wall,
-                   "steps_per_s": steps / wall if wall > 0 else float("inf"), **mixture.diagnostics()}
+    kept = recorder.n_samples
+    steps = chains * (burn_in + kept * thin)
+    diagnostics = {"chains": chains, "steps": steps, "samples": chains * kept, "doublings": doublings,
+                   "wall_s": wall, "steps_per_s": steps / wall if wall > 0 else float("inf"), **mixture.diagnostics()}
     diagnostics.update(screening_diagnostics(posterior, delayed_acceptance))
     return recorder.result("mcmc", diagnostics)
+
+
+class _Chain:
+    """One Metropolis-Hastings chain of :func:`mcmc`: :meth:`step` advances it and returns its state."""
+
+    def __init__(self, posterior, state, rng, mixture: "MoveMixture", delayed_acceptance):
+        self.posterior, self.state, self.rng = posterior, state, rng
+        self.mixture, self.delayed_acceptance = mixture, delayed_acceptance
+
+    def step(self):
+        self.state, _ = self.mixture.step(self.posterior, self.state, self.rng,
+                                          delayed_acceptance=self.delayed_acceptance)
+        return self.state
+
+
+def run_chains(chains, n_samples: int, burn_in: int = 0, thin: int = 1,
+               max_doublings: int = 0) -> tuple["SampleRecorder", int]:
+    """Run ``chains`` (objects whose ``step()`` advances one chain and returns the state to record) for
+    ``burn_in + n_samples * thin`` steps each, keeping every ``thin``-th state after the burn-in; then, while
+    there are several chains and they disagree (:func:`ptm.diagnostics.chains_agree`), double ``n_samples``
+    and continue every chain from where it stopped, at most ``max_doublings`` times.
+
+    The burn-in stays as given. Each chain draws from its own stream and the target is a function of the
+    partition alone, so an extended run keeps exactly the samples of a run started with the final
+    ``n_samples``. Returns the recorder and the number of doublings made.
+    """
+    recorder = SampleRecorder(len(chains), n_samples)
+    taken = [0] * len(chains)
+    doublings = 0
+    while True:
+        steps = burn_in + recorder.n_samples * thin
+        for index, chain in enumerate(chains):
+            for step in range(taken[index], steps):
+                state = chain.step()
+                kept, remainder = divmod(step - burn_in + 1, thin)
+                if step >= burn_in and remainder == 0:
+                    recorder.keep(index, kept - 1, state)
+            taken[index] = steps
+            recorder.flush()
+        if doublings == max_doublings or len(chains) < 2 or chains_agree(recorder.convergence()):
+            return recorder, doublings
+        doublings += 1
+        recorder.extend(2 * recorder.n_samples)
 
 
 @dataclass(frozen=True)
@@ -272,6 +317,7 @@ class SampleRecorder:
     """Pools kept samples into a histogram (run-length counted, also per chain) and per-chain traces."""
 
     def __init__(self, chains: int, n_samples: int):
+        self.n_samples = n_samples
         self.counts: dict[Partition, int] = {}
         self.chain_counts: list[dict[Partition, int]] = [{} for _ in range(chains)]
         self.log_prob = np.empty((chains, n_samples))
@@ -282,6 +328,7 @@ class SampleRecorder:
         self._current = None
         self._chain = 0
         self._run_length = 0
+        self._convergence = (-1, {})  # (samples recorded, their convergence diagnostics)
 
     def keep(self, chain: int, index: int, state) -> None:
         self.log_prob[chain, index] = self._log_prob_of.setdefault(state.partition, state.log_prob)
@@ -298,15 +345,33 @@ class SampleRecorder:
             per_chain[self._current] = per_chain.get(self._current, 0) + self._run_length
         self._current, self._run_length = None, 0
 
-    def result(self, method: str, diagnostics: dict) -> PTM:
+    def extend(self, n_samples: int) -> None:
+        """Make room for ``n_samples`` per chain (more than now), keeping what was recorded."""
+        grown = n_samples - self.n_samples
+        self.log_prob = np.pad(self.log_prob, ((0, 0), (0, grown)))
+        self.num_places = np.pad(self.num_places, ((0, 0), (0, grown)))
+        self.n_samples = n_samples
+
+    def convergence(self) -> dict:
+        """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain) and
+        the largest difference between two chains' co-assignments, for several chains; else {}."""
         self.flush()
+        recorded = sum(self.counts.values())
+        if self._convergence[0] == recorded:
+            return dict(self._convergence[1])
         chains, n_samples = self.log_prob.shape
+        diagnostics = {}
         if chains > 1 and n_samples >= 4:
             for name, trace in (("log_prob", self.log_prob), ("num_places", self.num_places)):
                 diagnostics[f"rhat_{name}"] = split_rhat(trace)
                 diagnostics[f"ess_{name}"] = effective_sample_size(trace)
         if chains > 1:
             diagnostics["coassignment_max_difference"] = self.coassignment_max_difference()
+        self._convergence = (recorded, diagnostics)
+        return dict(diagnostics)
+
+    def result(self, method: str, diagnostics: dict) -> PTM:
+        diagnostics.update(self.convergence())
         diagnostics["n_distinct"] = len(self.counts)
         partitions = np.array([partition.labels for partition in self.counts], dtype=np.int32)
         frequencies = np.array(list(self.counts.values()), dtype=float)

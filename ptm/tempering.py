@@ -29,14 +29,14 @@ import numpy as np
 
 from ._validation import count
 from .moves import initial_state
-from .sampler import MoveMixture, SampleRecorder, default_moves, screening_diagnostics, start_labels, warm_up_start
+from .sampler import MoveMixture, default_moves, run_chains, screening_diagnostics, start_labels, warm_up_start
 
 __all__ = ["tempered_mcmc"]
 
 
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
-                  delayed_acceptance=False, chains: int = 1, warm_up: int = 0):
+                  delayed_acceptance=False, chains: int = 1, warm_up: int = 0, max_doublings: int = 0):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
@@ -47,7 +47,8 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     ``moves``, ``delayed_acceptance`` (``True`` or a surrogate) and ``warm_up``
     (steps on approximations of the posterior from each replica's start) are
     those of :func:`ptm.mcmc`, so ``**ptm.sampler.guided_options(posterior)``
-    applies to every replica.
+    applies to every replica. ``max_doublings`` runs ladders whose beta = 1
+    chains disagree on, twice as long each time, as in :func:`ptm.mcmc`.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -55,6 +56,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     swap_interval = count("swap_interval", swap_interval, minimum=1)
     chains = count("chains", chains, minimum=1)
     warm_up = count("warm_up", warm_up, minimum=0)
+    max_doublings = count("max_doublings", max_doublings, minimum=0)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
@@ -62,15 +64,12 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     ladder_seeds = [root] if chains == 1 else root.spawn(chains)
     mixtures = [MoveMixture(moves if moves is not None else default_moves()) for _ in betas]
-    recorder = SampleRecorder(chains, n_samples)
-    swaps_proposed = np.zeros(betas.size - 1, dtype=np.int64)
-    swaps_accepted = np.zeros(betas.size - 1, dtype=np.int64)
+    swaps = _SwapCounts(betas.size - 1)
 
     started = time.perf_counter()
-    total = burn_in + n_samples * thin
+    ladders = []
     for chain, ladder_seed in enumerate(ladder_seeds):
         replica_seeds = ladder_seed.spawn(betas.size + 1)
-        swap_rng = np.random.default_rng(replica_seeds[-1])
         rngs = [np.random.default_rng(s) for s in replica_seeds[:-1]]
         surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
         states = []
@@ -79,30 +78,55 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
             if warm_up:
                 labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
             states.append(initial_state(posterior, labels))
-        for step in range(total):
-            for index, beta in enumerate(betas):
-                states[index], _ = mixtures[index].step(posterior, states[index], rngs[index], beta, delayed_acceptance)
-            if (step + 1) % swap_interval == 0:
-                lower = min(int(swap_rng.random() * (betas.size - 1)), betas.size - 2)
-                upper = lower + 1
-                log_ratio = (betas[lower] - betas[upper]) * (states[upper].log_prob - states[lower].log_prob)
-                swaps_proposed[lower] += 1
-                if math.log(swap_rng.random() or 5e-324) < log_ratio:
-                    states[lower], states[upper] = states[upper], states[lower]
-                    swaps_accepted[lower] += 1
-            kept, remainder = divmod(step - burn_in + 1, thin)
-            if step >= burn_in and remainder == 0:
-                recorder.keep(chain, kept - 1, states[0])
-        recorder.flush()
+        ladders.append(_Ladder(posterior, betas, states, rngs, np.random.default_rng(replica_seeds[-1]), mixtures,
+                               delayed_acceptance, swap_interval, swaps))
+    recorder, doublings = run_chains(ladders, n_samples, burn_in, thin, max_doublings)
     wall = time.perf_counter() - started
 
+    total = burn_in + recorder.n_samples * thin
     steps = chains * total * betas.size
     diagnostics = {
         "chains": chains, "replicas": int(betas.size), "inverse_temperatures": betas.tolist(),
-        "steps": steps, "samples": chains * n_samples, "wall_s": wall,
+        "steps": steps, "samples": chains * recorder.n_samples, "doublings": doublings, "wall_s": wall,
         "steps_per_s": steps / wall if wall > 0 else float("inf"),
-        "swap_acceptance": (swaps_accepted / np.maximum(swaps_proposed, 1)).tolist(),
+        "swap_acceptance": (swaps.accepted / np.maximum(swaps.proposed, 1)).tolist(),
         **mixtures[0].diagnostics(),
     }
     diagnostics.update(screening_diagnostics(posterior, delayed_acceptance))
     return recorder.result("tempered_mcmc", diagnostics)
+
+
+class _SwapCounts:
+    """Proposed and accepted swaps per adjacent pair of inverse temperatures, over all ladders."""
+
+    def __init__(self, pairs: int):
+        self.proposed = np.zeros(pairs, dtype=np.int64)
+        self.accepted = np.zeros(pairs, dtype=np.int64)
+
+
+class _Ladder:
+    """One ladder of tempered replicas: :meth:`step` advances every replica, proposes a swap every
+    ``swap_interval`` steps, and returns the beta = 1 replica's state."""
+
+    def __init__(self, posterior, betas, states, rngs, swap_rng, mixtures, delayed_acceptance, swap_interval: int,
+                 swaps: _SwapCounts):
+        self.posterior, self.betas, self.states, self.rngs, self.swap_rng = posterior, betas, states, rngs, swap_rng
+        self.mixtures, self.delayed_acceptance, self.swap_interval, self.swaps = (mixtures, delayed_acceptance,
+                                                                                  swap_interval, swaps)
+        self.steps = 0
+
+    def step(self):
+        states, betas = self.states, self.betas
+        for index, beta in enumerate(betas):
+            states[index], _ = self.mixtures[index].step(self.posterior, states[index], self.rngs[index], beta,
+                                                         self.delayed_acceptance)
+        self.steps += 1
+        if self.steps % self.swap_interval == 0:
+            lower = min(int(self.swap_rng.random() * (betas.size - 1)), betas.size - 2)
+            upper = lower + 1
+            log_ratio = (betas[lower] - betas[upper]) * (states[upper].log_prob - states[lower].log_prob)
+            self.swaps.proposed[lower] += 1
+            if math.log(self.swap_rng.random() or 5e-324) < log_ratio:
+                states[lower], states[upper] = states[upper], states[lower]
+                self.swaps.accepted[lower] += 1
+        return states[0]

@@ -4,10 +4,11 @@ mapper's latency per detection (docs/model.md §3.4, §3.8).
 *Time to agreement.* Generated corridor grids of 5 x 5 and 8 x 8 nodes (world and run seed 0, aliasing 0,
 noise 1; about 30 and 60 detections), odometry + appearance calibrated on held-out runs exactly as a sweep
 cell is (:func:`ptm_bench.evaluation.cell.run_cell`), sampled with the harness's default sampler
-(four chains, ``inference.moves = "auto"``) at 2 500, 5 000, ... 40 000 samples per chain (twice the
-default, 20 000) until the chains agree by the sweep's rule (:func:`ptm_bench.evaluation.cell.disagreement`).
-Rows, n = the run's detections: ``agreement_samples_per_chain`` (NaN when 40 000 did not agree),
-``agreement_wall_s`` (the sampler's wall time in that run, or in the 40 000-sample one), ``agreement_rhat_log_prob`` and
+(four chains, ``inference.moves = "auto"``) from 2 500 samples per chain (burn-in 250), doubled until the
+chains agree (:func:`ptm.diagnostics.chains_agree`, the sampler's own ``max_doublings``) or 40 000 (twice
+the default n_samples, 20 000) did not. Rows, n = the run's detections: ``agreement_samples_per_chain`` (NaN
+when 40 000 did not agree), ``agreement_wall_s`` (the sampler's wall time, every doubling included),
+``agreement_rhat_log_prob`` and
 ``agreement_coassignment_max_difference`` reached, ``agreement_map_ari``, and
 ``odometry_evaluations_per_s`` (one over the mean time of a cache-missing evaluation of the odometry term
 in that run).
@@ -56,7 +57,7 @@ GRID_SIDE = 10
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
 AGREEMENT_SIDES = (5, 8)
-AGREEMENT_SAMPLES = (2_500, 5_000, 10_000, 20_000, 40_000)
+AGREEMENT_FIRST_SAMPLES, AGREEMENT_BURN_IN, AGREEMENT_DOUBLINGS = 2_500, 250, 4  # up to 40 000 samples
 
 
 def _grid_run(side: int, seed: int) -> ptm.Dataset:
@@ -77,20 +78,19 @@ def scale_rows(args) -> list[dict]:
 
 
 def _agreement_rows(side: int) -> list[dict]:
-    """Time to agreement of the default sampler on one grid run: the run's sweep cell, at longer and longer
-    chains (``n_samples``, with the default's burn-in of a tenth)."""
+    """Time to agreement of the default sampler on one grid run: the run's sweep cell, its chains doubled in
+    length until they agree."""
     config = {"name": "speed_scale",
               "sweep": {"worlds": [{"generator": "corridor_grid", "name": f"grid{side}x{side}", "rows": side,
                                     "cols": side, "loops": min(4, (side - 1) ** 2), "place_density": 0.6}],
                         "seeds": [0], "calibration_seeds": [HELD_OUT_SEED]},
+              "inference": {"n_samples": AGREEMENT_FIRST_SAMPLES, "burn_in": AGREEMENT_BURN_IN,
+                            "max_doublings": AGREEMENT_DOUBLINGS},
               "variants": [{"name": "odometry+appearance", "models": ["odometry", "appearance"]}]}
     with tempfile.TemporaryDirectory() as folder:
         (cell,) = expand_cells(parse_experiment(config), Path(folder))
-        for samples in AGREEMENT_SAMPLES:
-            cell["settings"]["inference"].update(n_samples=samples, burn_in=samples // 10)
-            row = run_cell(cell)  # the run and its held-out runs are generated once, then read from the cache
-            if not row["warning"]:
-                break
+        row = run_cell(cell)
+    samples = AGREEMENT_FIRST_SAMPLES * 2 ** row["diag_doublings"]
     values = [
         ("agreement_samples_per_chain", math.nan if row["warning"] else float(samples), "samples"),
         ("agreement_wall_s", row["diag_wall_s"], "s"),

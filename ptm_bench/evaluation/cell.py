@@ -66,10 +66,6 @@ INFERENCE_KEY = 7_000
 #: Method "auto" enumerates up to ``exact_max_n`` detections unless the odometry term would be needed on more
 #: partitions than this (``ptm.exact_posterior``'s skip rule, known after one evaluation): then it samples.
 AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
-#: Independent chains agree (no ``warning`` in the row) when the split R-hat of log P and of the number of
-#: places is at most AGREEMENT_RHAT and every two chains' co-assignment matrices differ by at most
-#: AGREEMENT_COASSIGNMENT (issue 11's targets).
-AGREEMENT_RHAT, AGREEMENT_COASSIGNMENT = 1.05, 0.05
 #: ``inference.moves = "auto"`` samples with the guided moves from this many detections on. Below it the default
 #: moves: on 12-detection runs with shared decors the guided ones mixed worst (results/ablations). From 25
 #: detections on the default ones leave a chain at all-one-place, with odometry (docs/model.md §3.4) and with
@@ -173,10 +169,12 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     if method == "tempered":
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=burn_in, thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], **_sampler_options(moves, inference, posterior))
+                                   chains=inference["chains"], max_doublings=inference["max_doublings"],
+                                   **_sampler_options(moves, inference, posterior))
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=burn_in, thin=inference["thin"],
-                          seed=sampler_seed, chains=inference["chains"], **_sampler_options(moves, inference, posterior))
+                          seed=sampler_seed, chains=inference["chains"], max_doublings=inference["max_doublings"],
+                          **_sampler_options(moves, inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
@@ -226,25 +224,23 @@ def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> d
 
 
 def disagreement(diagnostics: dict) -> str:
-    """A warning when a sampler's independent chains disagree, saying what was reached, or "" when they agree.
+    """A warning when a sampler's independent chains disagree (:func:`ptm.diagnostics.chains_agree`: split
+    R-hat of log P and of the number of places, co-assignments), saying what was reached, or "" when they
+    agree or the result has no several chains (the exact posterior, one chain).
 
-    They agree when the split R-hat of log P and of the number of places are at most ``AGREEMENT_RHAT`` and
-    every two chains' co-assignment matrices are within ``AGREEMENT_COASSIGNMENT`` of each other (max abs);
-    a result without several chains (the exact posterior, one chain) gives "".
-
-        >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4})
-        'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.4 (<= 0.05); the PTM is not converged: sample longer (inference.n_samples), or try inference.method = "tempered"'
+        >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4, "doublings": 2})
+        'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.4 (<= 0.05), after doubling the chains 2 times; the PTM is not converged: sample longer (inference.n_samples, inference.max_doublings), or try inference.method = "tempered"'
     """
-    reached = {name: diagnostics.get(name) for name in ("rhat_log_prob", "rhat_num_places", "coassignment_max_difference")}
-    if any(value is None for value in reached.values()):
+    if ptm.diagnostics.chains_agree(diagnostics) in (True, None):
         return ""
-    if (reached["rhat_log_prob"] <= AGREEMENT_RHAT and reached["rhat_num_places"] <= AGREEMENT_RHAT
-            and reached["coassignment_max_difference"] <= AGREEMENT_COASSIGNMENT):
-        return ""
-    return (f"independent chains disagree: split R-hat of log P {reached['rhat_log_prob']:.3g} (want <= {AGREEMENT_RHAT}), "
-            f"of the number of places {reached['rhat_num_places']:.3g} (<= {AGREEMENT_RHAT}), largest co-assignment "
-            f"difference {reached['coassignment_max_difference']:.3g} (<= {AGREEMENT_COASSIGNMENT}); the PTM is not "
-            'converged: sample longer (inference.n_samples), or try inference.method = "tempered"')
+    rhat, coassignment = ptm.diagnostics.AGREEMENT_RHAT, ptm.diagnostics.AGREEMENT_COASSIGNMENT
+    doublings = diagnostics.get("doublings", 0)
+    return (f"independent chains disagree: split R-hat of log P {diagnostics['rhat_log_prob']:.3g} (want <= {rhat}), "
+            f"of the number of places {diagnostics['rhat_num_places']:.3g} (<= {rhat}), largest co-assignment "
+            f"difference {diagnostics['coassignment_max_difference']:.3g} (<= {coassignment})"
+            + (f", after doubling the chains {doublings} time{'s' * (doublings != 1)}" if doublings else "")
+            + '; the PTM is not converged: sample longer (inference.n_samples, inference.max_doublings), or try '
+              'inference.method = "tempered"')
 
 
 def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:

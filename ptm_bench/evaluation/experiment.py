@@ -81,6 +81,9 @@ DEFAULTS = {
         "burn_in": None,
         "thin": 1,
         "chains": 4,  # independent chains of "mcmc", independent ladders of "tempered"
+        # chains that disagree after n_samples (ptm.diagnostics.chains_agree) are run on, twice as long each time,
+        # at most this many times: the default keeps up to 4 x n_samples per chain where that is what agreement takes
+        "max_doublings": 2,
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
         "exact_max_n": 10,
@@ -261,7 +264,7 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: them: at that value a key stays out of a cell's definition, so adding an option does not make every
 #: existing row stale (a cell that sets another value is a new cell).
 _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
-               ("odometry", "penalty_proposal"): "subspace"}
+               ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0}
 _UNSET = object()
 
 
@@ -448,6 +451,7 @@ _VALUE_CHECKS = {
         "burn_in": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
         "thin": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
         "chains": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "max_doublings": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
         "prior_rate": (lambda v: _is_number(v) and v > 0, "a positive number"),
         "delayed_acceptance": (lambda v: isinstance(v, bool), "true or false"),
         "exact_max_n": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
