@@ -49,7 +49,8 @@ from .result import PTM
 from .surrogate import OdometrySurrogate
 
 __all__ = ["mcmc", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
-           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder", "run_chains"]
+           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder", "run_chains",
+           "ESTIMATES", "checked_estimate"]
 
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 #: Warm-up steps per detection of :func:`guided_options` (:func:`warm_up_start`).
@@ -86,7 +87,8 @@ def guided_options(posterior, delayed_acceptance: bool = True) -> dict:
 
 
 def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, chains: int = 1,
-         init=None, moves=None, delayed_acceptance=False, warm_up: int = 0, max_doublings: int = 0) -> PTM:
+         init=None, moves=None, delayed_acceptance=False, warm_up: int = 0, max_doublings: int = 0,
+         estimate: str = "frequency") -> PTM:
     """Sample the posterior over topologies; return the pooled histogram as a PTM.
 
     Parameters
@@ -119,6 +121,10 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
         While several chains disagree (:func:`ptm.diagnostics.chains_agree`),
         double the samples kept per chain, at most this many times
         (:func:`run_chains`); ``diagnostics["doublings"]`` says how many were needed.
+    estimate : "frequency", "renormalised" or "auto"
+        A topology's probability: its share of the kept samples, its posterior probability normalised over
+        the topologies the chains visited, or the second where every chain visited nearly all of those
+        (:class:`SampleRecorder`).
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -126,6 +132,7 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     chains = count("chains", chains, minimum=1)
     warm_up = count("warm_up", warm_up, minimum=0)
     max_doublings = count("max_doublings", max_doublings, minimum=0)
+    estimate = checked_estimate(estimate)
     mixture = MoveMixture(moves if moves is not None else default_moves())
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     started = time.perf_counter()
@@ -137,7 +144,7 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
             surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
             labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
         runners.append(_Chain(posterior, initial_state(posterior, labels), rng, mixture, delayed_acceptance))
-    recorder, doublings = run_chains(runners, n_samples, burn_in, thin, max_doublings)
+    recorder, doublings = run_chains(runners, n_samples, burn_in, thin, max_doublings, estimate)
     wall = time.perf_counter() - started
     kept = recorder.n_samples
     steps = chains * (burn_in + kept * thin)
@@ -160,8 +167,8 @@ class _Chain:
         return self.state
 
 
-def run_chains(chains, n_samples: int, burn_in: int = 0, thin: int = 1,
-               max_doublings: int = 0) -> tuple["SampleRecorder", int]:
+def run_chains(chains, n_samples: int, burn_in: int = 0, thin: int = 1, max_doublings: int = 0,
+               estimate: str = "frequency") -> tuple["SampleRecorder", int]:
     """Run ``chains`` (objects whose ``step()`` advances one chain and returns the state to record) for
     ``burn_in + n_samples * thin`` steps each, keeping every ``thin``-th state after the burn-in; then, while
     there are several chains and they disagree (:func:`ptm.diagnostics.chains_agree`), double ``n_samples``
@@ -169,9 +176,10 @@ def run_chains(chains, n_samples: int, burn_in: int = 0, thin: int = 1,
 
     The burn-in stays as given. Each chain draws from its own stream and the target is a function of the
     partition alone, so an extended run keeps exactly the samples of a run started with the final
-    ``n_samples``. Returns the recorder and the number of doublings made.
+    ``n_samples``. ``estimate`` is the recorder's (:class:`SampleRecorder`), which the agreement is judged on.
+    Returns the recorder and the number of doublings made.
     """
-    recorder = SampleRecorder(len(chains), n_samples)
+    recorder = SampleRecorder(len(chains), n_samples, estimate)
     taken = [0] * len(chains)
     doublings = 0
     while True:
@@ -313,10 +321,38 @@ class MoveMixture:
         }
 
 
-class SampleRecorder:
-    """Pools kept samples into a histogram (run-length counted, also per chain) and per-chain traces."""
+#: How a sampler turns its chains into probabilities (:class:`SampleRecorder`).
+ESTIMATES = ("frequency", "renormalised", "auto")
+#: ``estimate = "auto"`` renormalises when every chain visited topologies holding at least this share of the
+#: renormalised mass of all chains' (:meth:`SampleRecorder.chain_coverage`).
+RENORMALISE_COVERAGE = 0.99
 
-    def __init__(self, chains: int, n_samples: int):
+
+def checked_estimate(estimate: str) -> str:
+    """``estimate`` if it is one of :data:`ESTIMATES`, else ``ValueError``."""
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
+    return estimate
+
+
+class SampleRecorder:
+    """Pools kept samples into a histogram (run-length counted, also per chain) and per-chain traces.
+
+    With ``estimate = "frequency"`` a topology's probability is the share of kept samples in it. With
+    ``"renormalised"`` it is P(T|Z) itself, normalised over the distinct topologies the chains visited:
+    exp(log P(T|Z)) / sum over visited T' of exp(log P(T'|Z)) (docs/model.md §3.4). Both converge to the
+    posterior; the second has no Monte-Carlo error in the ratios between visited topologies, and puts no mass
+    where no chain went: its total variation from the posterior is exactly the posterior mass of the topologies
+    never visited. It is the better estimate where the chains have found all of the posterior's bulk and
+    revisit it (a peaked posterior, a sampler that moves rarely), and a biased one where they keep finding new
+    topologies (a flat posterior over very many). ``"auto"`` decides by the chains themselves: renormalised
+    when each of several chains visited topologies holding at least ``RENORMALISE_COVERAGE`` of the
+    renormalised mass of all of them (:meth:`chain_coverage`), frequency otherwise;
+    ``diagnostics["estimate"]`` says which was used.
+    """
+
+    def __init__(self, chains: int, n_samples: int, estimate: str = "frequency"):
+        self.estimate = checked_estimate(estimate)
         self.n_samples = n_samples
         self.counts: dict[Partition, int] = {}
         self.chain_counts: list[dict[Partition, int]] = [{} for _ in range(chains)]
@@ -352,9 +388,26 @@ class SampleRecorder:
         self.num_places = np.pad(self.num_places, ((0, 0), (0, grown)))
         self.n_samples = n_samples
 
+    def chain_coverage(self) -> float:
+        """The smallest share, over chains, of the renormalised mass of every visited topology that a chain
+        visited itself (1 when the chains visited the same topologies; NaN with one chain)."""
+        self.flush()
+        if len(self.chain_counts) < 2:
+            return math.nan
+        mass = dict(zip(self.counts, self._weights(self.counts, "renormalised")))
+        total = sum(mass.values())
+        return min(sum(mass[partition] for partition in counts) / total for counts in self.chain_counts)
+
+    def resolved_estimate(self) -> str:
+        """The estimate used: :attr:`estimate`, with ``"auto"`` resolved by :meth:`chain_coverage`."""
+        if self.estimate != "auto":
+            return self.estimate
+        return "renormalised" if self.chain_coverage() >= RENORMALISE_COVERAGE else "frequency"
+
     def convergence(self) -> dict:
-        """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain) and
-        the largest difference between two chains' co-assignments, for several chains; else {}."""
+        """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain), and
+        for several chains the largest difference between two chains' co-assignments and the chains'
+        coverage of the visited topologies (:meth:`chain_coverage`); else {}."""
         self.flush()
         recorded = sum(self.counts.values())
         if self._convergence[0] == recorded:
@@ -367,23 +420,34 @@ class SampleRecorder:
                 diagnostics[f"ess_{name}"] = effective_sample_size(trace)
         if chains > 1:
             diagnostics["coassignment_max_difference"] = self.coassignment_max_difference()
+            diagnostics["chain_coverage_min"] = self.chain_coverage()
         self._convergence = (recorded, diagnostics)
         return dict(diagnostics)
 
     def result(self, method: str, diagnostics: dict) -> PTM:
         diagnostics.update(self.convergence())
         diagnostics["n_distinct"] = len(self.counts)
-        partitions = np.array([partition.labels for partition in self.counts], dtype=np.int32)
-        frequencies = np.array(list(self.counts.values()), dtype=float)
-        return PTM(partitions, frequencies, method, diagnostics,
+        estimate = self.resolved_estimate()
+        diagnostics["estimate"] = estimate
+        return PTM(np.array([partition.labels for partition in self.counts], dtype=np.int32),
+                   self._weights(self.counts, estimate), method, diagnostics,
                    traces={"log_prob": self.log_prob, "num_places": self.num_places})
+
+    def _weights(self, counts: dict, estimate: str) -> np.ndarray:
+        """Unnormalised probabilities of the visited topologies ``counts`` (partition -> samples kept) under a
+        resolved ``estimate``: their sample counts, or exp(log P) scaled by the largest."""
+        if estimate == "frequency":
+            return np.array(list(counts.values()), dtype=float)
+        log_probs = np.array([self._log_prob_of[partition] for partition in counts])
+        return np.exp(log_probs - log_probs.max())
 
     def coassignment_max_difference(self) -> float:
         """max over pairs of chains and detections (i, j) of |C_a(i, j) - C_b(i, j)|, C_c the co-assignment
-        matrix of chain c's own samples: 0 when the chains agree on which detections share a place."""
+        matrix of chain c's own estimate (its samples alone, under :meth:`resolved_estimate`): 0 when the chains
+        agree on which detections share a place."""
+        estimate = self.resolved_estimate()
         matrices = [PTM(np.array([partition.labels for partition in counts], dtype=np.int32),
-                        np.array(list(counts.values()), dtype=float), "chain").coassignment()
-                    for counts in self.chain_counts]
+                        self._weights(counts, estimate), "chain").coassignment() for counts in self.chain_counts]
         return float(max(np.abs(first - second).max()
                          for index, first in enumerate(matrices) for second in matrices[index + 1:]))
 

@@ -29,14 +29,16 @@ import numpy as np
 
 from ._validation import count
 from .moves import initial_state
-from .sampler import MoveMixture, default_moves, run_chains, screening_diagnostics, start_labels, warm_up_start
+from .sampler import (MoveMixture, checked_estimate, default_moves, run_chains, screening_diagnostics, start_labels,
+                      warm_up_start)
 
 __all__ = ["tempered_mcmc"]
 
 
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
-                  delayed_acceptance=False, chains: int = 1, warm_up: int = 0, max_doublings: int = 0):
+                  delayed_acceptance=False, chains: int = 1, warm_up: int = 0, max_doublings: int = 0,
+                  estimate: str = "frequency"):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
@@ -48,7 +50,8 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     (steps on approximations of the posterior from each replica's start) are
     those of :func:`ptm.mcmc`, so ``**ptm.sampler.guided_options(posterior)``
     applies to every replica. ``max_doublings`` runs ladders whose beta = 1
-    chains disagree on, twice as long each time, as in :func:`ptm.mcmc`.
+    chains disagree on, twice as long each time, and ``estimate`` turns the beta = 1 chains into
+    probabilities, as in :func:`ptm.mcmc`.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -57,6 +60,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     chains = count("chains", chains, minimum=1)
     warm_up = count("warm_up", warm_up, minimum=0)
     max_doublings = count("max_doublings", max_doublings, minimum=0)
+    estimate = checked_estimate(estimate)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
@@ -80,7 +84,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
             states.append(initial_state(posterior, labels))
         ladders.append(_Ladder(posterior, betas, states, rngs, np.random.default_rng(replica_seeds[-1]), mixtures,
                                delayed_acceptance, swap_interval, swaps))
-    recorder, doublings = run_chains(ladders, n_samples, burn_in, thin, max_doublings)
+    recorder, doublings = run_chains(ladders, n_samples, burn_in, thin, max_doublings, estimate)
     wall = time.perf_counter() - started
 
     total = burn_in + recorder.n_samples * thin

@@ -57,7 +57,8 @@ def _two_cluster_posterior():
 
 
 def _histogram(result):
-    return {tuple(labels): probability for labels, probability in zip(map(tuple, result.partitions), result.probabilities)}
+    return {tuple(labels): probability
+            for labels, probability in zip(map(tuple, result.partitions), result.probabilities)}
 
 
 class _NeverMoves:

@@ -170,11 +170,11 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
         result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
                                    burn_in=burn_in, thin=inference["thin"], seed=sampler_seed,
                                    chains=inference["chains"], max_doublings=inference["max_doublings"],
-                                   **_sampler_options(moves, inference, posterior))
+                                   estimate=inference["estimate"], **_sampler_options(moves, inference, posterior))
     elif method == "mcmc":
         result = ptm.mcmc(posterior, inference["n_samples"], burn_in=burn_in, thin=inference["thin"],
                           seed=sampler_seed, chains=inference["chains"], max_doublings=inference["max_doublings"],
-                          **_sampler_options(moves, inference, posterior))
+                          estimate=inference["estimate"], **_sampler_options(moves, inference, posterior))
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
@@ -228,7 +228,8 @@ def disagreement(diagnostics: dict) -> str:
     R-hat of log P and of the number of places, co-assignments), saying what was reached, or "" when they
     agree or the result has no several chains (the exact posterior, one chain).
 
-        >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4, "doublings": 2})
+        >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4,
+        ...               "doublings": 2})
         'independent chains disagree: split R-hat of log P 1.52 (want <= 1.05), of the number of places 1.01 (<= 1.05), largest co-assignment difference 0.4 (<= 0.05), after doubling the chains 2 times; the PTM is not converged: sample longer (inference.n_samples, inference.max_doublings), or try inference.method = "tempered"'
     """
     if ptm.diagnostics.chains_agree(diagnostics) in (True, None):

@@ -53,6 +53,7 @@ MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
 MOVE_SETS = ("auto", "default", "paper", "guided")
+ESTIMATES = ("frequency", "renormalised", "auto")  # ptm.sampler.ESTIMATES
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 SAMPLING_COORDINATES = ("increments", "poses")  # ptm.odometry.SAMPLING_COORDINATES (parsing imports no inference)
 PENALTY_PROPOSALS = ("mode", "subspace")  # ptm.odometry.PENALTY_PROPOSALS
@@ -84,6 +85,9 @@ DEFAULTS = {
         # chains that disagree after n_samples (ptm.diagnostics.chains_agree) are run on, twice as long each time,
         # at most this many times: the default keeps up to 4 x n_samples per chain where that is what agreement takes
         "max_doublings": 2,
+        # how "mcmc" and "tempered" turn chains into probabilities: visit frequencies, P(T|Z) renormalised over the
+        # visited topologies, or "auto": renormalised where every chain visited nearly all of them (ptm.mcmc)
+        "estimate": "auto",
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
         "exact_max_n": 10,
@@ -264,7 +268,8 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: them: at that value a key stays out of a cell's definition, so adding an option does not make every
 #: existing row stale (a cell that sets another value is a new cell).
 _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
-               ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0}
+               ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
+               ("inference", "estimate"): "frequency"}
 _UNSET = object()
 
 
@@ -321,6 +326,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
             _check_values(overrides, section, source, f"{where}: ")
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
     _check_choice(merged["inference"]["moves"], MOVE_SETS, f"{where} inference.moves", source)
+    _check_choice(merged["inference"]["estimate"], ESTIMATES, f"{where} inference.estimate", source)
     _check_choice(merged["odometry"]["sampling_coordinates"], SAMPLING_COORDINATES,
                   f"{where} odometry.sampling_coordinates", source)
     _check_choice(merged["odometry"]["penalty_proposal"], PENALTY_PROPOSALS, f"{where} odometry.penalty_proposal",
