@@ -1,7 +1,8 @@
 """The result: a probabilistic topological map (paper Section III, docs/model.md §3.6).
 
 A PTM is a histogram over canonical partitions — exact probabilities from
-enumeration, or visit frequencies from MCMC. It answers: the k most probable
+enumeration, or from MCMC visit frequencies or posterior values renormalised
+over the visited partitions (``ptm.mcmc(..., estimate=...)``). It answers: the k most probable
 topologies, the probability of any partition (0 if never visited), the MAP,
 pairwise co-assignment probabilities P(i and j are the same place), the
 expected number of places, the entropy, a pandas export and, for sampled
