@@ -232,3 +232,18 @@ def test_the_odometry_ess_is_summarised_and_a_degenerate_one_is_flagged(tmp_path
     degenerate = summary.write_summary(experiment, table, tmp_path, figures=False).read_text()
     assert "Odometry estimates unreliable** in 1 of 2 conditions" in degenerate
     assert "short_loop a=1 noise=1 appearance: 1.2" in degenerate
+
+
+def test_the_provenance_says_how_sampled_probabilities_were_estimated(tmp_path, experiment):
+    table = _table(experiment, tmp_path)
+    assert "`estimate`" not in "\n".join(summary._provenance_section(table))  # rows without the diagnostic
+    appearance = table["variant"] == "appearance"
+    table.loc[appearance, "diag_estimate"] = ["renormalised", "frequency", "renormalised", "renormalised"][
+        :appearance.sum()]
+    table.loc[appearance, "diag_chain_coverage_min"] = [0.995, 0.6, 0.999, 0.992][:appearance.sum()]
+    lines = summary._provenance_section(table)
+    entry = next(line for line in lines if "`estimate`" in line)
+    assert entry.startswith("  - `estimate`: posterior values renormalised over the visited topologies in ")
+    assert "visit frequencies in 1 of" in entry and "0.6 to 0.999" in entry
+    variant_line = max(index for index, line in enumerate(lines[:lines.index(entry)]) if line.startswith("- **"))
+    assert lines[variant_line] == "- **appearance**"

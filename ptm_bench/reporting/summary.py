@@ -400,11 +400,32 @@ def _provenance_section(table: pd.DataFrame) -> list[str]:
             values = [str(value) for value in dict.fromkeys(group[column].dropna()) if str(value).strip()]
             if values:
                 entries.append(f"  - `{column[len(SOURCE_PREFIX):]}`: " + "; ".join(values))
+        estimate = _estimate_entry(group)
+        entries += [estimate] if estimate else []
         if entries:
             lines += [f"- **{variant}**", *entries]
     if not lines:
         return []
     return ["## Where the parameters came from", "", *lines, ""]
+
+
+def _estimate_entry(group: pd.DataFrame) -> str:
+    """How a sampled variant's cells turned chains into probabilities (``diag_estimate``, ``ptm.mcmc``'s
+    ``estimate``), with the lowest chain coverage where some renormalised; "" for exact or older rows."""
+    if "diag_estimate" not in group:
+        return ""
+    used = group["diag_estimate"].dropna()
+    if used.empty:
+        return ""
+    names = {"renormalised": "posterior values renormalised over the visited topologies",
+             "frequency": "visit frequencies"}
+    parts = [f"{names.get(name, name)} in {count} of {len(used)} cells" for name, count in used.value_counts().items()]
+    coverage = group.loc[used.index, "diag_chain_coverage_min"] if "diag_chain_coverage_min" in group else None
+    detail = ""
+    if coverage is not None and coverage.notna().any():
+        detail = (f" (the worst chain's share of the visited topologies' renormalised mass: {coverage.min():.3g} to "
+                  f"{coverage.max():.3g}; \"auto\" renormalises from {ptm.sampler.RENORMALISE_COVERAGE:g})")
+    return "  - `estimate`: " + "; ".join(parts) + detail
 
 
 def _paper_comparison(experiment: Experiment, summary: pd.DataFrame) -> pd.DataFrame:
