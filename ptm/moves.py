@@ -466,10 +466,12 @@ def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
     replay T's allocation instead of drawing one."""
     score, log_prior = posterior.block_score, posterior.log_prior_by_size
     sets = list(left_behind)
+    set_scores = [score(block) for block in sets]  # kept in step with sets: each set is scored once per change
     home_of = {member: position for position, block in enumerate(sets) for member in block}
     log_q = 0.0
     for detection in detections:
-        weights = [score(_with_member(block, detection)) - score(block) for block in sets]
+        grown = [score(_with_member(block, detection)) for block in sets]
+        weights = [with_detection - without for with_detection, without in zip(grown, set_scores)]
         opening = log_prior[len(sets) + 1] - log_prior[len(sets)] if sets else 0.0  # the first set: no choice
         weights.append(score((detection,)) + opening)
         log_weights = np.asarray(weights)
@@ -483,8 +485,10 @@ def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
         log_q += weights[pick] - log_norm
         if pick == len(sets):
             sets.append((detection,))
+            set_scores.append(score((detection,)))
         else:
             sets[pick] = _with_member(sets[pick], detection)
+            set_scores[pick] = grown[pick]
         home_of[detection] = pick
     return tuple(sorted(sets)), log_q
 
