@@ -473,7 +473,8 @@ def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
         grown = [score(_with_member(block, detection)) for block in sets]
         weights = [with_detection - without for with_detection, without in zip(grown, set_scores)]
         opening = log_prior[len(sets) + 1] - log_prior[len(sets)] if sets else 0.0  # the first set: no choice
-        weights.append(score((detection,)) + opening)
+        alone = score((detection,))
+        weights.append(alone + opening)
         log_weights = np.asarray(weights)
         log_norm = float(np.logaddexp.reduce(log_weights))
         if old is None:
@@ -485,7 +486,7 @@ def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
         log_q += weights[pick] - log_norm
         if pick == len(sets):
             sets.append((detection,))
-            set_scores.append(score((detection,)))
+            set_scores.append(alone)
         else:
             sets[pick] = _with_member(sets[pick], detection)
             set_scores[pick] = grown[pick]
