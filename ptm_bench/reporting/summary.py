@@ -423,8 +423,10 @@ def _estimate_entry(group: pd.DataFrame) -> str:
     coverage = group.loc[used.index, "diag_chain_coverage_min"] if "diag_chain_coverage_min" in group else None
     detail = ""
     if coverage is not None and coverage.notna().any():
-        detail = (f" (the worst chain's share of the visited topologies' renormalised mass: {coverage.min():.3g} to "
-                  f"{coverage.max():.3g}; \"auto\" renormalises from {ptm.sampler.RENORMALISE_COVERAGE:g})")
+        low, high = f"{coverage.min():.3g}", f"{coverage.max():.3g}"
+        detail = (f" (the worst chain's share of the visited topologies' renormalised mass: "
+                  f"{low if low == high else f'{low} to {high}'}; \"auto\" renormalises from "
+                  f"{ptm.sampler.RENORMALISE_COVERAGE:g})")
     return "  - `estimate`: " + "; ".join(parts) + detail
 
 
