@@ -41,7 +41,8 @@ from scipy.optimize import minimize
 from scipy import stats
 from scipy.special import digamma, gammaln
 
-from ._validation import finite_array, positive, positive_array
+from ._validation import count, finite_array, positive, positive_array
+from .appearance_outliers import fit_outlier_model, outlier_log_evidence, outlier_predictive
 from .partitions import Partition
 
 __all__ = ["AppearanceModel", "IndependentStudentT", "calibration_groups", "inverse_gamma_from_mean_variance",
@@ -74,9 +75,15 @@ class AppearanceModel:
         inverse-gamma shape and scale of the per-set noise variance.
     evidence : {"corrected", "paper_eq19"}
         The exact NIG evidence (default) or the paper's printed eq. (19), an ablation only.
+    outlier_share, outlier_scale, max_outliers
+        Visits from unusual standpoints (``ptm.appearance_outliers``, docs/model.md §3.2.2): each visit is,
+        with prior probability ``outlier_share``, seen with ``outlier_scale`` x its place's variance in
+        every component; a place has at most ``max_outliers`` such visits. ``outlier_share = 0`` (the
+        default) is the paper's model.
     """
 
-    def __init__(self, mu, kappa, alpha, beta, evidence: str = "corrected"):
+    def __init__(self, mu, kappa, alpha, beta, evidence: str = "corrected", outlier_share: float = 0.0,
+                 outlier_scale: float = 1.0, max_outliers: int = 2):
         self.mu = finite_array("mu", mu)
         if self.mu.ndim > 1:
             raise ValueError(f"mu must be a scalar or a 1-D array, got shape {self.mu.shape}")
@@ -86,12 +93,28 @@ class AppearanceModel:
         if evidence not in EVIDENCE_FORMS:
             raise ValueError(f"evidence must be one of {EVIDENCE_FORMS}, got {evidence!r}")
         self.evidence = evidence
+        self.outlier_share = float(outlier_share)
+        if not 0.0 <= self.outlier_share < 1.0:
+            raise ValueError(f"outlier_share must lie in [0, 1), got {outlier_share!r}")
+        self.outlier_scale = positive("outlier_scale", outlier_scale)
+        if self.outlier_share > 0.0 and self.outlier_scale <= 1.0:
+            raise ValueError(f"outlier_scale must exceed 1 when outlier_share > 0, got {outlier_scale!r}")
+        self.max_outliers = count("max_outliers", max_outliers, 1)
+        if self.outlier_share > 0.0 and evidence != "corrected":
+            raise ValueError("outliers (outlier_share > 0) need evidence='corrected'; the printed eq. (19) is "
+                             "an ablation of the paper's model only")
         lengths = {name: np.size(value) for name, value in self._hyper().items() if np.ndim(value) == 1}
         if len(set(lengths.values())) > 1:
             raise ValueError(f"hyperparameter arrays have different lengths: {lengths}")
 
     def _hyper(self) -> dict:
         return {"mu": self.mu, "kappa": self.kappa, "alpha": self.alpha, "beta": self.beta}
+
+    @property
+    def outliers(self) -> dict:
+        """The outlier settings as constructor keywords (``outlier_share = 0``: none)."""
+        return {"outlier_share": self.outlier_share, "outlier_scale": self.outlier_scale,
+                "max_outliers": self.max_outliers}
 
     def bind(self, dataset) -> "AppearanceTerm":
         if dataset.signatures is None:
@@ -103,9 +126,14 @@ class AppearanceModel:
         return AppearanceTerm(self, dataset.signatures)
 
     @classmethod
-    def fit(cls, datasets, evidence: str = "corrected", max_alpha: float = 10.0) -> "AppearanceModel":
+    def fit(cls, datasets, evidence: str = "corrected", max_alpha: float = 10.0, outliers: bool = False,
+            max_outliers: int = 2) -> "AppearanceModel":
         """Empirical Bayes: per-component (mu, kappa, alpha, beta) maximising the evidence
         of the ground-truth partitions of labelled calibration datasets.
+
+        With ``outliers=True`` the outlier share and scale (docs/model.md §3.2.2) are fitted
+        to the same evidence together with those four, starting from their fit without outliers
+        (``ptm.appearance_outliers.fit_outlier_model``).
 
         ``max_alpha`` bounds the inverse-gamma shape. Unbounded, a few
         calibration runs whose places share one noise level drive alpha to the
@@ -126,14 +154,22 @@ class AppearanceModel:
         fitted = np.array([_fit_component([group[:, k] for group in groups], evidence, max_alpha, component=k)
                            for k in range(width)])
         mu, kappa, alpha, beta = fitted.T
-        return cls(mu, kappa, alpha, beta, evidence=evidence)
+        if not outliers:
+            return cls(mu, kappa, alpha, beta, evidence=evidence)
+        if evidence != "corrected":
+            raise ValueError("outliers=True needs evidence='corrected'")
+        mu, kappa, alpha, beta, share, scale = fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers, max_alpha)
+        return cls(mu, kappa, alpha, beta, evidence=evidence, outlier_share=share, outlier_scale=scale,
+                   max_outliers=max_outliers)
 
     def __repr__(self) -> str:
         def show(value):
             return f"{float(value):.4g}" if np.ndim(value) == 0 else np.array2string(value, precision=4)
 
+        outliers = (f", outlier_share={self.outlier_share:.4g}, outlier_scale={self.outlier_scale:.4g}, "
+                    f"max_outliers={self.max_outliers}") if self.outlier_share > 0 else ""
         return (f"AppearanceModel(mu={show(self.mu)}, kappa={show(self.kappa)}, "
-                f"alpha={show(self.alpha)}, beta={show(self.beta)}, evidence={self.evidence!r})")
+                f"alpha={show(self.alpha)}, beta={show(self.beta)}, evidence={self.evidence!r}{outliers})")
 
 
 class AppearanceTerm:
@@ -171,6 +207,10 @@ class AppearanceTerm:
         """sum_k log p(S, k) for the set of detections ``block``."""
         members = list(block)
         n = len(members)
+        model = self.model
+        if model.outlier_share > 0.0:
+            return float(outlier_log_evidence(self._centred[members], self._kappa, self._alpha, self._beta,
+                                              model.outlier_share, model.outlier_scale, model.max_outliers))
         if n == 1:
             total = self._centred[members[0]]
             squares = self._centred_squared[members[0]]
@@ -191,6 +231,10 @@ class AppearanceTerm:
                              "use evidence='corrected'")
         members = list(given)
         n = len(members)
+        model = self.model
+        if model.outlier_share > 0.0:
+            return outlier_predictive(self._centred[members], model.mu, self._kappa, self._alpha, self._beta,
+                                      model.outlier_share, model.outlier_scale, model.max_outliers)
         total = self._centred[members].sum(axis=0) if n else np.zeros_like(self._kappa)
         squares = self._centred_squared[members].sum(axis=0) if n else np.zeros_like(self._kappa)
         kappa_n = self._kappa + n

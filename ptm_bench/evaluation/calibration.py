@@ -97,7 +97,7 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
 
 
 def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
-                      prior_mean: str = "global", scored_signatures=None):
+                      prior_mean: str = "global", scored_signatures=None, outliers: bool = False):
     """Empirical-Bayes appearance hyperparameters from the labelled held-out runs, and their source.
 
     ``model`` is ``"joint"`` (``ptm.JointAppearanceModel``, Normal-Inverse-Wishart over the K-vector) or
@@ -109,12 +109,15 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
     with each run's mean signature removed, and the prior mean is the scored run's own mean signature
     (``scored_signatures``: all its detections, no labels). With ``"global"`` the spread between worlds
     counts as spread between places, and a run whose places all look alike is read as one place.
+
+    ``outliers=True`` (the independent model only) also fits the share of visits seen from unusual
+    standpoints and their variance scale (docs/model.md §3.2.2).
     """
-    return appearance_fitter(held_out, model, evidence, prior_mean)(scored_signatures)
+    return appearance_fitter(held_out, model, evidence, prior_mean, outliers)(scored_signatures)
 
 
 def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
-                      prior_mean: str = "global"):
+                      prior_mean: str = "global", outliers: bool = False):
     """:func:`fitted_appearance` fitted once: a function from a scored run's signatures to (model, source).
 
     The empirical-Bayes fit depends on the held-out runs only; with ``prior_mean = "run"`` each scored run
@@ -123,8 +126,8 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
     held_out = _labelled(held_out, "appearance hyperparameters")
     if prior_mean == "run":
         centred = [replace(run, signatures=run.signatures - run.signatures.mean(axis=0)) for run in held_out]
-        fitted, source = appearance_fitter(centred, model, evidence)(None)
-        extra = {} if model == "joint" else {"evidence": evidence}
+        fitted, source = appearance_fitter(centred, model, evidence, outliers=outliers)(None)
+        extra = {} if model == "joint" else {"evidence": evidence, **fitted.outliers}
 
         def around_run_mean(scored_signatures):
             if scored_signatures is None:
@@ -139,12 +142,17 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
     if model == "joint":
         if evidence != "corrected":
             raise ValueError(f"appearance.evidence = {evidence!r} exists only for the independent model")
+        if outliers:
+            raise ValueError("appearance.outliers = true exists only for appearance.model = 'independent'; "
+                             "set appearance.outliers = false for the joint model")
         fitted = ptm.JointAppearanceModel.fit(held_out)
     elif model == "independent":
-        fitted = ptm.AppearanceModel.fit(held_out, evidence=evidence)
+        fitted = ptm.AppearanceModel.fit(held_out, evidence=evidence, outliers=outliers)
     else:
         raise ValueError(f"appearance.model must be 'joint' or 'independent', got {model!r}")
-    source = f"empirical Bayes ({model}) on {_runs(held_out)}"
+    with_outliers = (f", outlier share {fitted.outlier_share:.3g} at {fitted.outlier_scale:.3g} x the variance"
+                     if outliers else "")
+    source = f"empirical Bayes ({model}{with_outliers}) on {_runs(held_out)}"
     return lambda scored_signatures: (fitted, source)
 
 
