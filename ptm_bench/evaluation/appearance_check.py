@@ -16,11 +16,13 @@ its own decor, so a good model should rarely be fooled):
   predictive p-values below 0.001 (0.1 % expected) and the Kolmogorov-Smirnov
   p-value against the uniform.
 
-The joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
+The harness's default (the independent-component model with visits from
+unusual standpoints, ``appearance.outliers = true``, docs/model.md §3.2.2), the
+joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
 paper's independent-component model (``ptm.AppearanceModel``) are checked on
-the same runs, each with the prior mean the harness uses by default (the
-scored run's own mean signature, ``appearance.prior_mean = "run"``) and with
-the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
+the same runs, with the prior mean the harness uses by default (the
+scored run's own mean signature, ``appearance.prior_mean = "run"``) and the
+last two also with the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
 :func:`ptm_bench.evaluation.calibration.fitted_appearance`, as in a sweep (fitted once per world and model). ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
 ``summary.md`` and ``pit.png`` to its output folder.
 
@@ -42,12 +44,14 @@ from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["APPEARANCE_MODELS", "CONFIDENCE", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
 
-#: The models checked: name -> (``appearance.model``, ``appearance.prior_mean``) of a sweep's config.
+#: The models checked: name -> (``appearance.model``, ``appearance.prior_mean``, ``appearance.outliers``) of a
+#: sweep's config.
 APPEARANCE_MODELS = {
-    "independent": ("independent", "run"),
-    "joint": ("joint", "run"),
-    "independent (global mean)": ("independent", "global"),
-    "joint (global mean)": ("joint", "global"),
+    "independent + outliers": ("independent", "run", True),
+    "independent": ("independent", "run", False),
+    "joint": ("joint", "run", False),
+    "independent (global mean)": ("independent", "global", False),
+    "joint (global mean)": ("joint", "global", False),
 }
 DEFAULT_WORLDS = {
     "office": "office",
@@ -79,10 +83,10 @@ def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, a
 
         calibration = datasets(range(CALIBRATION_FIRST_SEED, CALIBRATION_FIRST_SEED + calibration_runs))
         scored = datasets(range(runs))
-        for model_name, (model, prior_mean) in APPEARANCE_MODELS.items():
+        for model_name, (model, prior_mean, outliers) in APPEARANCE_MODELS.items():
             started = time.perf_counter()
 
-            fitter = appearance_fitter(calibration, model, prior_mean=prior_mean)
+            fitter = appearance_fitter(calibration, model, prior_mean=prior_mean, outliers=outliers)
             row, pits = _check(lambda dataset: fitter(dataset.signatures)[0], scored)
             rows.append({"world": world_name, "model": model_name, "runs": runs,
                          "calibration_runs": calibration_runs, "aliasing": aliasing, "noise": noise,

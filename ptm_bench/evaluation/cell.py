@@ -144,10 +144,13 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
     if "appearance" in settings["models"]:
         appearance = settings["appearance"]
         model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"],
-                                                             appearance["prior_mean"], dataset.signatures)
+                                                             appearance["prior_mean"], dataset.signatures,
+                                                             appearance["outliers"])
         names = APPEARANCE_HYPERPARAMETERS[appearance["model"]]
-        used["appearance_hyperparameters"] = json.dumps(
-            {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names})
+        hyperparameters = {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names}
+        if appearance["outliers"]:
+            hyperparameters.update(outlier_share=round(model.outlier_share, 6), outlier_scale=round(model.outlier_scale, 6))
+        used["appearance_hyperparameters"] = json.dumps(hyperparameters)
         models.append(model)
     used["prior_rate"], used["source_prior_rate"] = prior_rate(settings["inference"], dataset.n, held_out)
     return ptm.Posterior(dataset, ptm.PoissonPrior(used["prior_rate"]), models), used

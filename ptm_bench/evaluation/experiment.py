@@ -133,6 +133,10 @@ DEFAULTS = {
         # between places; "global": one prior mean for every world, fitted across the calibration runs (the
         # paper), which reads a run whose places all look alike as one place
         "prior_mean": "run",
+        # true (the default): each visit may be seen from an unusual standpoint, with the share of such visits
+        # and their variance fitted on the calibration runs (docs/model.md §3.2.2; the independent model
+        # only); false: the paper's model, every visit of a place with the same variance
+        "outliers": True,
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
 }
@@ -269,7 +273,7 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: existing row stale (a cell that sets another value is a new cell).
 _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
                ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
-               ("inference", "estimate"): "frequency"}
+               ("inference", "estimate"): "frequency", ("appearance", "outliers"): False}
 _UNSET = object()
 
 
@@ -337,6 +341,10 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
     if merged["appearance"]["evidence"] != "corrected" and merged["appearance"]["model"] != "independent":
         raise ValueError(f"{source}: {where}: appearance.evidence = {merged['appearance']['evidence']!r} needs "
                          "appearance.model = 'independent' (the printed eq. 19 is a form of the paper's model)")
+    if merged["appearance"]["outliers"] and (merged["appearance"]["model"], merged["appearance"]["evidence"]) != (
+            "independent", "corrected"):
+        raise ValueError(f"{source}: {where}: appearance.outliers = true (the default) exists for appearance.model = "
+                         "'independent' with evidence = 'corrected' only; set appearance.outliers = false")
     return merged
 
 
@@ -473,6 +481,7 @@ _VALUE_CHECKS = {
     },
     "appearance": {
         "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "outliers": (lambda v: isinstance(v, bool), "true or false"),
     },
 }
 
