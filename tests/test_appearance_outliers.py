@@ -166,3 +166,54 @@ def test_fit_finds_outliers_where_the_data_have_them():
 def test_bad_outlier_settings_are_refused_by_name(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ptm.AppearanceModel(MU, KAPPA, ALPHA, BETA, **kwargs)
+
+
+# -- in the harness -------------------------------------------------------------------------------------
+
+
+def sweep_config(appearance):
+    return {"sweep": {"worlds": ["short_loop"], "aliasing": [0.0], "noise": [1.0], "seeds": [0]},
+            "variants": [{"name": "a", "models": ["appearance"], "appearance": appearance}]}
+
+
+def test_outlier_visits_are_the_harness_default_and_the_paper_model_another_cell():
+    from pathlib import Path
+
+    from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
+
+    def cell(appearance):
+        (only,) = expand_cells(parse_experiment(sweep_config(appearance)), Path("unused"))
+        return only
+
+    assert cell({})["settings"]["appearance"]["outliers"] is True
+    assert cell({})["definition"] == cell({"outliers": True})["definition"] != cell({"outliers": False})["definition"]
+
+
+@pytest.mark.parametrize("appearance, message", [
+    ({"model": "joint"}, "appearance.outliers = false"),
+    ({"evidence": "paper_eq19"}, "appearance.outliers = false"),
+    ({"outliers": "yes"}, "appearance.outliers must be true or false"),
+])
+def test_outliers_with_another_model_or_a_non_boolean_are_refused(appearance, message):
+    from ptm_bench.evaluation.experiment import parse_experiment
+
+    with pytest.raises(ValueError, match=message):
+        parse_experiment(sweep_config(appearance))
+    if "model" in appearance or "evidence" in appearance:  # with outliers off, the same model is accepted
+        parse_experiment(sweep_config({**appearance, "outliers": False}))
+
+
+def test_the_calibration_fit_carries_the_outliers_to_each_run_around_its_mean():
+    from ptm_bench.evaluation.calibration import fitted_appearance
+
+    rng = np.random.default_rng(6)
+    calibration = draw_runs(rng, share=0.15, scale=9.0, runs=2, places=30)
+    scored = draw_runs(rng, share=0.15, scale=9.0, runs=1, places=5)[0]
+    fitted, source = fitted_appearance(calibration, prior_mean="run", scored_signatures=scored.signatures,
+                                       outliers=True)
+    assert fitted.outlier_share > 0.01 and fitted.outlier_scale > 1.5 and "outlier share" in source
+    np.testing.assert_allclose(fitted.mu - scored.signatures.mean(axis=0),
+                               fitted_appearance(calibration, prior_mean="run",
+                                                 scored_signatures=np.zeros((1, 2)), outliers=True)[0].mu)
+    with pytest.raises(ValueError, match="independent"):
+        fitted_appearance(calibration, model="joint", outliers=True)
