@@ -176,7 +176,7 @@ def sweep_config(appearance):
             "variants": [{"name": "a", "models": ["appearance"], "appearance": appearance}]}
 
 
-def test_outlier_visits_are_the_harness_default_and_the_paper_model_another_cell():
+def test_the_paper_model_is_the_harness_default_and_outlier_visits_another_cell():
     from pathlib import Path
 
     from ptm_bench.evaluation.experiment import expand_cells, parse_experiment
@@ -185,13 +185,13 @@ def test_outlier_visits_are_the_harness_default_and_the_paper_model_another_cell
         (only,) = expand_cells(parse_experiment(sweep_config(appearance)), Path("unused"))
         return only
 
-    assert cell({})["settings"]["appearance"]["outliers"] is True
-    assert cell({})["definition"] == cell({"outliers": True})["definition"] != cell({"outliers": False})["definition"]
+    assert cell({})["settings"]["appearance"]["outliers"] is False
+    assert cell({})["definition"] == cell({"outliers": False})["definition"] != cell({"outliers": True})["definition"]
 
 
 @pytest.mark.parametrize("appearance, message", [
-    ({"model": "joint"}, "appearance.outliers = false"),
-    ({"evidence": "paper_eq19"}, "appearance.outliers = false"),
+    ({"model": "joint", "outliers": True}, "appearance.outliers = false"),
+    ({"evidence": "paper_eq19", "outliers": True}, "appearance.outliers = false"),
     ({"outliers": "yes"}, "appearance.outliers must be true or false"),
 ])
 def test_outliers_with_another_model_or_a_non_boolean_are_refused(appearance, message):

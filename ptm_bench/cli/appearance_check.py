@@ -19,7 +19,7 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "appearance-check",
         help="predictive check of the appearance models on held-out simulated runs",
-        description="Fit the appearance models (the default with outlier visits, the joint model, the paper's "
+        description="Fit the appearance models (with outlier visits, the joint model, the paper's "
                     "independent one) on calibration runs and report how "
                     "often they are fooled on held-out runs (Bayes factors of pairs, PIT of revisits).",
     )

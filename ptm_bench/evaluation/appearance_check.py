@@ -16,13 +16,13 @@ its own decor, so a good model should rarely be fooled):
   predictive p-values below 0.001 (0.1 % expected) and the Kolmogorov-Smirnov
   p-value against the uniform.
 
-The harness's default (the independent-component model with visits from
-unusual standpoints, ``appearance.outliers = true``, docs/model.md §3.2.2), the
+The independent-component model with visits from unusual standpoints
+(``appearance.outliers = true``, docs/model.md §3.2.2), the
 joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
 paper's independent-component model (``ptm.AppearanceModel``) are checked on
 the same runs, with the prior mean the harness uses by default (the
-scored run's own mean signature, ``appearance.prior_mean = "run"``) and the
-last two also with the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
+scored run's own mean signature, ``appearance.prior_mean = "run"``), the last
+two also with the paper's one global mean (:data:`APPEARANCE_MODELS`); the fits are those of
 :func:`ptm_bench.evaluation.calibration.fitted_appearance`, as in a sweep (fitted once per world and model). ``ptm-bench appearance-check`` writes ``checks.csv``, ``pit.csv``,
 ``summary.md`` and ``pit.png`` to its output folder.
 
