@@ -79,12 +79,18 @@ def outlier_configurations(n: int, max_outliers: int) -> tuple[np.ndarray, np.nd
     return masks, counts
 
 
+def _count_log_masses(n: int, share: float, max_outliers: int) -> tuple[np.ndarray, np.ndarray]:
+    """The allowed outlier counts m = 0 .. min(n, max_outliers) of an n-visit set and the logarithms of
+    C(n, m) share^m (1 - share)^(n - m), before renormalisation."""
+    allowed = np.arange(min(n, max_outliers) + 1)
+    return allowed, (gammaln(n + 1) - gammaln(allowed + 1) - gammaln(n - allowed + 1)
+                     + allowed * math.log(share) + (n - allowed) * math.log1p(-share))
+
+
 def _log_prior(n: int, counts: np.ndarray, share: float, max_outliers: int) -> np.ndarray:
     """log P(z | n) of each configuration: share^m (1 - share)^(n - m), renormalised over m <= max_outliers."""
-    allowed = np.arange(min(n, max_outliers) + 1)
-    log_binomial = gammaln(n + 1) - gammaln(allowed + 1) - gammaln(n - allowed + 1)
-    per_count = allowed * math.log(share) + (n - allowed) * math.log1p(-share)
-    return counts * math.log(share) + (n - counts) * math.log1p(-share) - logsumexp(log_binomial + per_count)
+    _, log_masses = _count_log_masses(n, share, max_outliers)
+    return counts * math.log(share) + (n - counts) * math.log1p(-share) - logsumexp(log_masses)
 
 
 def _weighted_posterior(centred: np.ndarray, masks: np.ndarray, kappa, scale: float):
@@ -175,15 +181,12 @@ def outlier_predictive(centred_given, mu, kappa, alpha, beta, share: float, scal
 
 def _log_prior_gradient(n: int, counts: np.ndarray, share: float, max_outliers: int) -> np.ndarray:
     """d log P(z | n) / d share of each configuration."""
-    allowed = np.arange(min(n, max_outliers) + 1)
-    log_binomial = gammaln(n + 1) - gammaln(allowed + 1) - gammaln(n - allowed + 1)
-    weights = np.exp(log_binomial + allowed * math.log(share) + (n - allowed) * math.log1p(-share))
-    weights /= weights.sum()
+    allowed, log_masses = _count_log_masses(n, share, max_outliers)
 
     def slope(m):
         return m / share - (n - m) / (1.0 - share)
 
-    return slope(counts) - weights @ slope(allowed)
+    return slope(counts) - np.exp(log_masses - logsumexp(log_masses)) @ slope(allowed)
 
 
 def stack_evidence_and_gradient(stack, mu, kappa, alpha, beta, share: float, scale: float,
@@ -200,13 +203,11 @@ def stack_evidence_and_gradient(stack, mu, kappa, alpha, beta, share: float, sca
     n, width = stack.shape[-2:]
     masks, counts = outlier_configurations(n, max_outliers)
     centred = stack - mu
+    log_joint = (_log_prior(n, counts, share, max_outliers)
+                 + _log_evidence_given(centred, masks, counts, kappa, alpha, beta, scale))
     kappa_n, total, squares = _weighted_posterior(centred, masks, kappa, scale)
     beta_n = beta + 0.5 * (squares - total * total / kappa_n)
     alpha_n = alpha + n / 2.0
-    log_given = (gammaln(alpha_n) - gammaln(alpha) + alpha * np.log(beta) - alpha_n * np.log(beta_n)
-                 + 0.5 * np.log(kappa / kappa_n)).sum(axis=-1)
-    log_joint = (_log_prior(n, counts, share, max_outliers) + log_given
-                 - 0.5 * n * width * math.log(2.0 * math.pi) - 0.5 * width * counts * math.log(scale))
     per_set = logsumexp(log_joint, axis=-1)
     weight = np.exp(log_joint - per_set[:, None])[..., None]  # (G, C, 1)
     pull = alpha_n / beta_n  # -d log p / d beta_n
