@@ -127,13 +127,13 @@ class AppearanceModel:
 
     @classmethod
     def fit(cls, datasets, evidence: str = "corrected", max_alpha: float = 10.0, outliers: bool = False,
-            max_outliers: int = 2) -> "AppearanceModel":
+            max_outliers: int = 2, max_outlier_share: float = 0.5) -> "AppearanceModel":
         """Empirical Bayes: per-component (mu, kappa, alpha, beta) maximising the evidence
         of the ground-truth partitions of labelled calibration datasets.
 
         With ``outliers=True`` the outlier share and scale (docs/model.md §3.2.2) are fitted
         to the same evidence together with those four, starting from their fit without outliers
-        (``ptm.appearance_outliers.fit_outlier_model``).
+        (``ptm.appearance_outliers.fit_outlier_model``), the share at most ``max_outlier_share``.
 
         ``max_alpha`` bounds the inverse-gamma shape. Unbounded, a few
         calibration runs whose places share one noise level drive alpha to the
@@ -158,7 +158,8 @@ class AppearanceModel:
             return cls(mu, kappa, alpha, beta, evidence=evidence)
         if evidence != "corrected":
             raise ValueError("outliers=True needs evidence='corrected'")
-        mu, kappa, alpha, beta, share, scale = fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers, max_alpha)
+        mu, kappa, alpha, beta, share, scale = fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers, max_alpha,
+                                                                 max_outlier_share)
         return cls(mu, kappa, alpha, beta, evidence=evidence, outlier_share=share, outlier_scale=scale,
                    max_outliers=max_outliers)
 

@@ -55,7 +55,8 @@ from scipy.special import digamma, gammaln, logsumexp
 __all__ = ["StudentTMixture", "fit_outlier_model", "outlier_configurations", "outlier_log_evidence",
            "outlier_predictive", "stack_evidence_and_gradient"]
 
-#: Where the empirical-Bayes fit may place the outlier share and the variance scale.
+#: Where the empirical-Bayes fit may place the outlier share (its upper end is the fit's ``max_share``
+#: argument, default 0.5) and the variance scale.
 SHARE_BOUNDS = (1e-3, 0.5)
 SCALE_BOUNDS = (1.5, 100.0)
 
@@ -226,17 +227,22 @@ def stack_evidence_and_gradient(stack, mu, kappa, alpha, beta, share: float, sca
     return float(per_set.sum()), gradient
 
 
-def fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers: int, max_alpha: float):
+def fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers: int, max_alpha: float,
+                      max_share: float = SHARE_BOUNDS[1]):
     """Empirical Bayes for the whole model: (mu, kappa, alpha, beta, share, scale) maximising the evidence of
     the calibration places' ``groups`` (each an (n, K) array).
 
     Starts from the paper model's fit (the per-component ``mu`` ... ``beta`` given) with a share of 0.1 at
-    4 x the variance, and moves all 4K + 2 together (L-BFGS-B with the analytic gradient of
-    :func:`stack_evidence_and_gradient`, in mu and the logarithms of the rest; alpha <= ``max_alpha``, share
-    and scale within :data:`SHARE_BOUNDS` and :data:`SCALE_BOUNDS`): the paper model's fit alone would keep
-    the variance that the outlier visits inflated. Raises ``RuntimeError`` naming the optimiser's message if
-    it fails.
+    4 x the variance (or ``max_share``, if lower), and moves all 4K + 2 together (L-BFGS-B with the analytic
+    gradient of :func:`stack_evidence_and_gradient`, in mu and the logarithms of the rest; alpha <=
+    ``max_alpha``, the share between the lower end of :data:`SHARE_BOUNDS` and ``max_share``, the scale within
+    :data:`SCALE_BOUNDS`): the paper model's fit alone would keep the variance that the outlier visits
+    inflated. ``max_share`` says how rare outlier visits are held to be: the evidence of the calibration runs
+    alone puts half the visits there (docs/model.md §3.2.2). Raises ``ValueError`` for a ``max_share``
+    outside (the lower bound, 0.5] and ``RuntimeError`` naming the optimiser's message if the fit fails.
     """
+    if not SHARE_BOUNDS[0] < max_share <= SHARE_BOUNDS[1]:
+        raise ValueError(f"max_share must lie in ({SHARE_BOUNDS[0]:g}, {SHARE_BOUNDS[1]:g}], got {max_share!r}")
     by_size = {}
     for group in groups:
         by_size.setdefault(len(group), []).append(np.asarray(group, dtype=float))
@@ -255,11 +261,11 @@ def fit_outlier_model(groups, mu, kappa, alpha, beta, max_outliers: int, max_alp
         gradient[width:] *= natural[width:]  # d / d log x = x d / d x
         return -value, -gradient
 
-    start = np.concatenate([mu, np.log(kappa), np.log(alpha), np.log(beta), np.log([0.1, 4.0])])
+    start = np.concatenate([mu, np.log(kappa), np.log(alpha), np.log(beta), np.log([min(0.1, max_share), 4.0])])
     bounds = ([(None, None)] * width + [(math.log(1e-4), math.log(1e4))] * width
               + [(math.log(min(0.5, max_alpha)), math.log(max_alpha))] * width
               + [(value - 25.0, value + 25.0) for value in np.log(beta)]
-              + [tuple(math.log(v) for v in SHARE_BOUNDS), tuple(math.log(v) for v in SCALE_BOUNDS)])
+              + [(math.log(SHARE_BOUNDS[0]), math.log(max_share)), tuple(math.log(v) for v in SCALE_BOUNDS)])
     result = minimize(negative_evidence, start, jac=True, method="L-BFGS-B", bounds=bounds)
     if not (result.success and np.isfinite(result.fun)):
         raise RuntimeError(f"AppearanceModel.fit: the outlier model's fit did not converge ({result.message})")
