@@ -156,6 +156,17 @@ def test_fit_finds_outliers_where_the_data_have_them():
     assert without.outlier_share < 0.05 or without.outlier_scale < 2.0  # no visit needs to be an outlier
 
 
+def test_the_fit_keeps_the_share_within_its_bound_and_refuses_a_bound_outside_the_range():
+    """Data with share 0.15: bounded at 0.05, the fit sits at the bound; a bound of 0.6 or 0 is refused."""
+    runs = draw_runs(np.random.default_rng(4), share=0.15, scale=9.0)
+    bounded = ptm.AppearanceModel.fit(runs, outliers=True, max_outlier_share=0.05)
+    assert bounded.outlier_share == pytest.approx(0.05, rel=1e-6)
+    assert bounded.outlier_share < ptm.AppearanceModel.fit(runs, outliers=True).outlier_share
+    for bad in (0.6, 0.0):
+        with pytest.raises(ValueError, match="max_share"):
+            ptm.AppearanceModel.fit(runs, outliers=True, max_outlier_share=bad)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"outlier_share": 1.0}, "outlier_share"),
     ({"outlier_share": -0.1}, "outlier_share"),
@@ -187,12 +198,18 @@ def test_the_paper_model_is_the_harness_default_and_outlier_visits_another_cell(
 
     assert cell({})["settings"]["appearance"]["outliers"] is False
     assert cell({})["definition"] == cell({"outliers": False})["definition"] != cell({"outliers": True})["definition"]
+    bounded = cell({"outliers": True, "max_outlier_share": 0.1})
+    assert bounded["settings"]["appearance"]["max_outlier_share"] == 0.1
+    assert bounded["definition"] != cell({"outliers": True})["definition"]
+    assert cell({"outliers": True, "max_outlier_share": 0.5})["definition"] == cell({"outliers": True})["definition"]
+    assert cell({"outliers": False, "max_outlier_share": 0.1})["definition"] == cell({"outliers": False})["definition"]
 
 
 @pytest.mark.parametrize("appearance, message", [
     ({"model": "joint", "outliers": True}, "appearance.outliers = false"),
     ({"evidence": "paper_eq19", "outliers": True}, "appearance.outliers = false"),
     ({"outliers": "yes"}, "appearance.outliers must be true or false"),
+    ({"outliers": True, "max_outlier_share": 0.7}, "appearance.max_outlier_share must be a number in"),
 ])
 def test_outliers_with_another_model_or_a_non_boolean_are_refused(appearance, message):
     from ptm_bench.evaluation.experiment import parse_experiment

@@ -17,7 +17,8 @@ its own decor, so a good model should rarely be fooled):
   p-value against the uniform.
 
 The independent-component model with visits from unusual standpoints
-(``appearance.outliers = true``, docs/model.md §3.2.2), the
+(``appearance.outliers = true``, docs/model.md §3.2.2; with the share of such
+visits bounded at 0.1, ``appearance.max_outlier_share``, and unbounded), the
 joint Normal-Inverse-Wishart model (``ptm.JointAppearanceModel``) and the
 paper's independent-component model (``ptm.AppearanceModel``) are checked on
 the same runs, with the prior mean the harness uses by default (the
@@ -44,14 +45,17 @@ from ptm_bench.evaluation.datacache import dataset_for
 
 __all__ = ["APPEARANCE_MODELS", "CONFIDENCE", "DEFAULT_WORLDS", "EXTREME_P", "PIT_BINS", "predictive_check"]
 
-#: The models checked: name -> (``appearance.model``, ``appearance.prior_mean``, ``appearance.outliers``) of a
-#: sweep's config.
+#: The models checked: name -> the ``[appearance]`` settings of a sweep's config that make it (``model``,
+#: ``prior_mean``, ``outliers``, ``max_outlier_share``; the keyword arguments of
+#: :func:`ptm_bench.evaluation.calibration.appearance_fitter`).
 APPEARANCE_MODELS = {
-    "independent + outliers": ("independent", "run", True),
-    "independent": ("independent", "run", False),
-    "joint": ("joint", "run", False),
-    "independent (global mean)": ("independent", "global", False),
-    "joint (global mean)": ("joint", "global", False),
+    "independent + rare outliers": {"model": "independent", "prior_mean": "run", "outliers": True,
+                                    "max_outlier_share": 0.1},
+    "independent + outliers": {"model": "independent", "prior_mean": "run", "outliers": True},
+    "independent": {"model": "independent", "prior_mean": "run", "outliers": False},
+    "joint": {"model": "joint", "prior_mean": "run", "outliers": False},
+    "independent (global mean)": {"model": "independent", "prior_mean": "global", "outliers": False},
+    "joint (global mean)": {"model": "joint", "prior_mean": "global", "outliers": False},
 }
 DEFAULT_WORLDS = {
     "office": "office",
@@ -83,10 +87,9 @@ def predictive_check(worlds: dict, runs: int = 30, calibration_runs: int = 10, a
 
         calibration = datasets(range(CALIBRATION_FIRST_SEED, CALIBRATION_FIRST_SEED + calibration_runs))
         scored = datasets(range(runs))
-        for model_name, (model, prior_mean, outliers) in APPEARANCE_MODELS.items():
+        for model_name, settings in APPEARANCE_MODELS.items():
             started = time.perf_counter()
-
-            fitter = appearance_fitter(calibration, model, prior_mean=prior_mean, outliers=outliers)
+            fitter = appearance_fitter(calibration, **settings)
             row, pits = _check(lambda dataset: fitter(dataset.signatures)[0], scored)
             rows.append({"world": world_name, "model": model_name, "runs": runs,
                          "calibration_runs": calibration_runs, "aliasing": aliasing, "noise": noise,

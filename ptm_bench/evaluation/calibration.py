@@ -97,7 +97,8 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
 
 
 def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
-                      prior_mean: str = "global", scored_signatures=None, outliers: bool = False):
+                      prior_mean: str = "global", scored_signatures=None, outliers: bool = False,
+                      max_outlier_share: float = 0.5):
     """Empirical-Bayes appearance hyperparameters from the labelled held-out runs, and their source.
 
     ``model`` is ``"joint"`` (``ptm.JointAppearanceModel``, Normal-Inverse-Wishart over the K-vector) or
@@ -111,13 +112,13 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
     counts as spread between places, and a run whose places all look alike is read as one place.
 
     ``outliers=True`` (the independent model only) also fits the share of visits seen from unusual
-    standpoints and their variance scale (docs/model.md §3.2.2).
+    standpoints and their variance scale (docs/model.md §3.2.2), the share at most ``max_outlier_share``.
     """
-    return appearance_fitter(held_out, model, evidence, prior_mean, outliers)(scored_signatures)
+    return appearance_fitter(held_out, model, evidence, prior_mean, outliers, max_outlier_share)(scored_signatures)
 
 
 def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
-                      prior_mean: str = "global", outliers: bool = False):
+                      prior_mean: str = "global", outliers: bool = False, max_outlier_share: float = 0.5):
     """:func:`fitted_appearance` fitted once: a function from a scored run's signatures to (model, source).
 
     The empirical-Bayes fit depends on the held-out runs only; with ``prior_mean = "run"`` each scored run
@@ -126,7 +127,8 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
     held_out = _labelled(held_out, "appearance hyperparameters")
     if prior_mean == "run":
         centred = [replace(run, signatures=run.signatures - run.signatures.mean(axis=0)) for run in held_out]
-        fitted, source = appearance_fitter(centred, model, evidence, outliers=outliers)(None)
+        fitted, source = appearance_fitter(centred, model, evidence, outliers=outliers,
+                                           max_outlier_share=max_outlier_share)(None)
         extra = {} if model == "joint" else {"evidence": evidence, **fitted.outliers}
 
         def around_run_mean(scored_signatures):
@@ -147,7 +149,8 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
                              "set appearance.outliers = false for the joint model")
         fitted = ptm.JointAppearanceModel.fit(held_out)
     elif model == "independent":
-        fitted = ptm.AppearanceModel.fit(held_out, evidence=evidence, outliers=outliers)
+        fitted = ptm.AppearanceModel.fit(held_out, evidence=evidence, outliers=outliers,
+                                         max_outlier_share=max_outlier_share)
     else:
         raise ValueError(f"appearance.model must be 'joint' or 'independent', got {model!r}")
     with_outliers = (f", outlier share {fitted.outlier_share:.3g} at {fitted.outlier_scale:.3g} x the variance"

@@ -145,7 +145,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
         appearance = settings["appearance"]
         model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"],
                                                              appearance["prior_mean"], dataset.signatures,
-                                                             appearance["outliers"])
+                                                             appearance["outliers"], appearance["max_outlier_share"])
         names = APPEARANCE_HYPERPARAMETERS[appearance["model"]]
         hyperparameters = {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names}
         if appearance["outliers"]:

@@ -139,6 +139,9 @@ DEFAULTS = {
         # It passes the predictive check that the paper's model fails, but merges places that share a decor
         # more readily and leaves the chains at 25-57 detections further from agreement (README "Evaluation")
         "outliers": False,
+        # the largest share of outlier visits the calibration fit may find (with outliers = true): the evidence of
+        # the calibration runs alone puts it at its bound, 0.5 (docs/model.md §3.2.2)
+        "max_outlier_share": 0.5,
         "components": None,  # None: the signatures as generated; an integer K recomputes them from the panoramas
     },
 }
@@ -275,8 +278,18 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 #: existing row stale (a cell that sets another value is a new cell).
 _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
                ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
-               ("inference", "estimate"): "frequency", ("appearance", "outliers"): False}
+               ("inference", "estimate"): "frequency", ("appearance", "outliers"): False,
+               ("appearance", "max_outlier_share"): 0.5}
+#: Keys that act only when another key of their section is true: left out of a cell's definition when it is
+#: false, so that changing their default does not make the cells that switch them off stale.
+_DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers"}
 _UNSET = object()
+
+
+def _decides(section: str, key: str, value, values: dict) -> bool:
+    """Whether a setting can change a cell's row (see :data:`_ADDED_KEYS` and :data:`_DEPENDENT_KEYS`)."""
+    switch = _DEPENDENT_KEYS.get((section, key))
+    return _ADDED_KEYS.get((section, key), _UNSET) != value and (switch is None or bool(values.get(switch)))
 
 
 def _definition(cell: dict) -> str:
@@ -287,14 +300,15 @@ def _definition(cell: dict) -> str:
     (:func:`ptm_bench.evaluation.datacache.world_identity`: edit a world file or bump
     ``GENERATOR_VERSION`` and the cell is recomputed on the next run), and
     :data:`ptm_bench.evaluation.cell.CELL_VERSION`, the version of the rules that turn a
-    dataset into a row. A key of :data:`_ADDED_KEYS` at its old-behaviour value is left out.
+    dataset into a row. A key of :data:`_ADDED_KEYS` at its old-behaviour value, and one of
+    :data:`_DEPENDENT_KEYS` whose switch is off, are left out.
     """
     # Imported here: both pull in the simulator or the inference package, which parsing configs does not need.
     from ptm_bench.evaluation.cell import CELL_VERSION
     from ptm_bench.evaluation.datacache import world_identity
 
-    settings = {section: ({key: value for key, value in values.items()
-                           if _ADDED_KEYS.get((section, key), _UNSET) != value} if isinstance(values, dict) else values)
+    settings = {section: ({key: value for key, value in values.items() if _decides(section, key, value, values)}
+                          if isinstance(values, dict) else values)
                 for section, values in cell["settings"].items()}
     decisive = {**cell, "settings": settings,
                 "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
@@ -484,6 +498,7 @@ _VALUE_CHECKS = {
     "appearance": {
         "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
         "outliers": (lambda v: isinstance(v, bool), "true or false"),
+        "max_outlier_share": (lambda v: _is_number(v) and 0.001 < v <= 0.5, "a number in (0.001, 0.5]"),
     },
 }
 
