@@ -42,7 +42,7 @@ from scipy import stats
 from scipy.special import digamma, gammaln
 
 from ._validation import count, finite_array, positive, positive_array
-from .appearance_outliers import fit_outlier_model, outlier_log_evidence, outlier_predictive
+from .appearance_outliers import SHARE_BOUNDS, fit_outlier_model, outlier_log_evidence, outlier_predictive
 from .partitions import Partition
 
 __all__ = ["AppearanceModel", "IndependentStudentT", "calibration_groups", "inverse_gamma_from_mean_variance",
@@ -127,7 +127,7 @@ class AppearanceModel:
 
     @classmethod
     def fit(cls, datasets, evidence: str = "corrected", max_alpha: float = 10.0, outliers: bool = False,
-            max_outliers: int = 2, max_outlier_share: float = 0.5) -> "AppearanceModel":
+            max_outliers: int = 2, max_outlier_share: float = SHARE_BOUNDS[1]) -> "AppearanceModel":
         """Empirical Bayes: per-component (mu, kappa, alpha, beta) maximising the evidence
         of the ground-truth partitions of labelled calibration datasets.
 

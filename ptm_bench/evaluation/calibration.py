@@ -98,7 +98,7 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
 
 def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
                       prior_mean: str = "global", scored_signatures=None, outliers: bool = False,
-                      max_outlier_share: float = 0.5):
+                      max_outlier_share: float = ptm.appearance_outliers.SHARE_BOUNDS[1]):
     """Empirical-Bayes appearance hyperparameters from the labelled held-out runs, and their source.
 
     ``model`` is ``"joint"`` (``ptm.JointAppearanceModel``, Normal-Inverse-Wishart over the K-vector) or
@@ -118,7 +118,8 @@ def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent
 
 
 def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
-                      prior_mean: str = "global", outliers: bool = False, max_outlier_share: float = 0.5):
+                      prior_mean: str = "global", outliers: bool = False,
+                      max_outlier_share: float = ptm.appearance_outliers.SHARE_BOUNDS[1]):
     """:func:`fitted_appearance` fitted once: a function from a scored run's signatures to (model, source).
 
     The empirical-Bayes fit depends on the held-out runs only; with ``prior_mean = "run"`` each scored run
