@@ -7,7 +7,11 @@ Each model is bound to the dataset once (``model.bind(dataset)``) and gives a
 offer ``block_log_likelihood(block)``; their sum over sets plus the prior is
 the *cheap* part of the posterior, memoised per set, so a split or merge
 re-scores only the sets it creates. The remaining (*global*) terms, such as
-the odometry likelihood, are evaluated on whole partitions.
+the odometry likelihood, are evaluated on whole partitions. A decomposable
+term may complete a global one (``completes_global_term``: the normaliser of
+the odometry ties, ``ptm.TieNormaliser``); what scores the cheap terms in
+place of the whole posterior reads :meth:`Posterior.standalone_block_score`,
+which leaves such terms out.
 
     >>> import numpy as np
     >>> from ptm import AppearanceModel, Dataset, PoissonPrior
@@ -50,6 +54,7 @@ class Posterior:
                 raise ValueError(f"{term!r} has no log_likelihood(partition) method")
         self.block_terms = [term for term in self.terms if hasattr(term, "block_log_likelihood")]
         self.global_terms = [term for term in self.terms if not hasattr(term, "block_log_likelihood")]
+        self.completing_terms = [term for term in self.block_terms if getattr(term, "completes_global_term", False)]
         by_size = prior.table(self.n) if hasattr(prior, "table") else [-math.inf] + [
             prior.log_prob(self.n, m) for m in range(1, self.n + 1)]
         self.log_prior_by_size = [-math.inf] + [_checked(value, "prior") for value in by_size[1:]]
@@ -66,6 +71,15 @@ class Posterior:
             for term in self.block_terms:
                 score += _checked(term.block_log_likelihood(block), term)
             self._block_cache.put(block, score)
+        return score
+
+    def standalone_block_score(self, block) -> float:
+        """:meth:`block_score` less the terms that complete a global term (``completes_global_term``): the
+        decomposable terms that mean something without the global ones, for a score that stands in for the
+        whole posterior (a sampler's warm-up on the cheap terms). Equal to :meth:`block_score` when there are none."""
+        score = self.block_score(block)
+        for term in self.completing_terms:
+            score -= _checked(term.block_log_likelihood(tuple(block)), term)
         return score
 
     def cheap_log_prob(self, partition: Partition) -> float:

@@ -490,7 +490,8 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
     chains, instead of an extreme (all distinct, all one place) where the odometry term is far from any
     mode and its estimate rough (docs/model.md §3.4).
 
-    The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance;
+    The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance, not the terms that complete the odometry term such as
+    :class:`ptm.TieNormaliser`, :meth:`ptm.Posterior.standalone_block_score`;
     guided split-merge and Gibbs reassignment, half and half), raised to an inverse temperature that rises
     geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their first half (:func:`_annealed`): at 1 from the
     start, a chain started with all detections at one place stays there when appearance alone cannot pull a
@@ -527,7 +528,8 @@ class _WarmUpTarget:
 
     def __init__(self, posterior, global_log_prob=None):
         self.n = posterior.n
-        self.block_score = posterior.block_score
+        # Without the global terms, the terms that complete one are left out too (ptm.TieNormaliser).
+        self.block_score = posterior.block_score if global_log_prob is not None else posterior.standalone_block_score
         self.log_prior_by_size = posterior.log_prior_by_size
         self.partition = posterior.partition
         self.has_global_terms = global_log_prob is not None
@@ -539,7 +541,8 @@ class _WarmUpTarget:
 
 def _draw_placement(posterior, labels: list[int], detection: int, rng) -> int:
     """Label for a new detection, drawn from its conditional under the cheap terms of the first
-    ``detection + 1`` detections (existing places or a new one)."""
+    ``detection + 1`` detections (existing places or a new one), less the terms that complete a global one."""
+    score = posterior.standalone_block_score
     blocks: dict[int, list[int]] = {}
     for index, label in enumerate(labels):
         blocks.setdefault(label, []).append(index)
@@ -548,7 +551,7 @@ def _draw_placement(posterior, labels: list[int], detection: int, rng) -> int:
     candidates = list(blocks) + [max(blocks, default=-1) + 1]
     for label in candidates:
         members = tuple(blocks.get(label, [])) + (detection,)
-        gain = posterior.block_score(members) - (posterior.block_score(tuple(blocks[label])) if label in blocks else 0.0)
+        gain = score(members) - (score(tuple(blocks[label])) if label in blocks else 0.0)
         log_weights.append(gain + (0.0 if label in blocks else _new_place_log_odds(posterior, places)))
     log_weights = np.array(log_weights)
     probabilities = np.exp(log_weights - log_weights.max())
