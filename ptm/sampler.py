@@ -490,10 +490,10 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
     chains, instead of an extreme (all distinct, all one place) where the odometry term is far from any
     mode and its estimate rough (docs/model.md §3.4).
 
-    The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance, not the terms that complete the odometry term such as
-    :class:`ptm.TieNormaliser`, :meth:`ptm.Posterior.standalone_block_score`;
-    guided split-merge and Gibbs reassignment, half and half), raised to an inverse temperature that rises
-    geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their first half (:func:`_annealed`): at 1 from the
+    The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance,
+    without the terms that complete the odometry term such as :class:`ptm.TieNormaliser`:
+    :meth:`ptm.Posterior.standalone_block_score`; guided split-merge and Gibbs reassignment, half and half),
+    raised to an inverse temperature that rises geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their first half (:func:`_annealed`): at 1 from the
     start, a chain started with all detections at one place stays there when appearance alone cannot pull a
     single detection out of the crowd (a 57-detection grid: 234 nats below the truth). The last half, with an
     :class:`ptm.surrogate.OdometrySurrogate`, adds its approximate odometry term (Laplace value and
@@ -528,8 +528,10 @@ class _WarmUpTarget:
 
     def __init__(self, posterior, global_log_prob=None):
         self.n = posterior.n
-        # Without the global terms, the terms that complete one are left out too (ptm.TieNormaliser).
-        self.block_score = posterior.block_score if global_log_prob is not None else posterior.standalone_block_score
+        # Without the global terms, the terms that complete one are left out too (ptm.TieNormaliser); where there
+        # are none, the memoised block score itself (no extra call in the warm-up's inner loop).
+        leaves_out = global_log_prob is None and posterior.completing_terms
+        self.block_score = posterior.standalone_block_score if leaves_out else posterior.block_score
         self.log_prior_by_size = posterior.log_prior_by_size
         self.partition = posterior.partition
         self.has_global_terms = global_log_prob is not None
