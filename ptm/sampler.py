@@ -493,7 +493,8 @@ def warm_up_start(posterior, labels, steps: int, rng, surrogate=None) -> tuple[i
     The first steps (all of them without ``surrogate``) target the cheap terms alone (prior and appearance,
     without the terms that complete the odometry term such as :class:`ptm.TieNormaliser`:
     :meth:`ptm.Posterior.standalone_block_score`; guided split-merge and Gibbs reassignment, half and half),
-    raised to an inverse temperature that rises geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their first half (:func:`_annealed`): at 1 from the
+    raised to an inverse temperature that rises geometrically from ``WARM_UP_FIRST_BETA`` to 1 over their
+    first half (:func:`_annealed`): at 1 from the
     start, a chain started with all detections at one place stays there when appearance alone cannot pull a
     single detection out of the crowd (a 57-detection grid: 234 nats below the truth). The last half, with an
     :class:`ptm.surrogate.OdometrySurrogate`, adds its approximate odometry term (Laplace value and
