@@ -223,7 +223,7 @@ class MapReassign:
 
     As :class:`GibbsReassign`, with each candidate's weight raised by the
     surrogate's prediction of the change of the global terms under the current
-    map (``surrogate.predicted_change``, :mod:`ptm.surrogate`): the detection
+    map (``surrogate.screening_change``, :mod:`ptm.surrogate`): the detection
     goes preferably where the current map puts it. The reverse move's
     probability needs the map of T' (``Proposal.reverse_log_q``), so the
     sampler evaluates such a proposal exactly instead of screening it; the
@@ -258,14 +258,14 @@ class MapReassign:
         return Proposal(removed, added, -forward, reverse_log_q)
 
     def _weights(self, posterior, partition: Partition, block_scores, detection: int):
-        """:func:`_destinations` with each weight raised by the predicted change of the global terms."""
+        """:func:`_destinations` with each weight raised by the surrogate's screening change of the global terms."""
         blocks = partition.blocks
         home, rest, targets, weights = _destinations(posterior, partition, block_scores, detection)
         current = home if rest else -1
         for position, target in enumerate(targets):
             if target != current:
                 removed, added = _reassigned(blocks, home, rest, detection, target)
-                weights[position] += self.surrogate.predicted_change(partition, [blocks[k] for k in removed], added)
+                weights[position] += self.surrogate.screening_change(partition, [blocks[k] for k in removed], added)
         return home, rest, targets, weights
 
 

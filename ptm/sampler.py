@@ -216,7 +216,7 @@ def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.
     """One MH step targeting P(T|Z)^inverse_temperature; returns (state, StepInfo).
 
     ``delayed_acceptance``: False, True (a first stage on the cheap terms), or
-    a surrogate whose ``predicted_change(partition, removed_sets, added_sets)``
+    a surrogate whose ``screening_change(partition, removed_sets, added_sets)``
     joins the cheap terms in the first stage.
     """
     proposal = move.propose(rng, state, posterior)
@@ -237,7 +237,7 @@ def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.
     elif posterior.has_global_terms and delayed_acceptance:
         surrogate = None if delayed_acceptance is True else delayed_acceptance
         removed = [state.blocks[index] for index in proposal.removed]
-        predicted = 0.0 if surrogate is None else surrogate.predicted_change(state.partition, removed,
+        predicted = 0.0 if surrogate is None else surrogate.screening_change(state.partition, removed,
                                                                               proposal.added)
         screening_ratio = log_ratio + inverse_temperature * predicted
         if log_uniform >= screening_ratio:
@@ -247,7 +247,7 @@ def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.
         log_global = posterior.global_log_prob(partition)
         reverse_predicted = 0.0
         if surrogate is not None and math.isfinite(log_global) and math.isfinite(state.log_global):
-            reverse_predicted = surrogate.predicted_change(partition, proposal.added, removed)
+            reverse_predicted = surrogate.screening_change(partition, proposal.added, removed)
         log_ratio = second_stage_log_ratio(inverse_temperature * (log_global - state.log_global),
                                            inverse_temperature * predicted, inverse_temperature * reverse_predicted,
                                            screening_ratio)
