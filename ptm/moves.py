@@ -22,12 +22,14 @@ sampler re-scores only what changed.
   partner drawn in proportion to the pair's Bayes factor exp(a_ij), a split
   anchor in proportion to exp(-a_ij) among its set; the Hastings ratio
   includes both anchor probabilities.
-* :class:`TrailingReallocation` — block sampling (Doucet, Briers & Senecal
-  2006) for the online mapper: the last ``window`` detections leave their
-  sets and are allocated again one by one, in order, each to a set or a new
+* :class:`WindowReallocation` — block sampling (Doucet, Briers & Senecal
+  2006): a window of consecutive detections, its start uniform, leaves its
+  sets and is allocated again one by one, in order, each to a set or a new
   one in proportion to the cheap terms; the reverse probability replays the
   allocation of T, which leaves the same sets behind. It realigns a retraced
   corridor that a run of single moves cannot (each step alone is worse).
+  :class:`TrailingReallocation` is the window of the last detections, for
+  the online mapper.
 
     >>> import math
     >>> from ptm import Dataset, PoissonPrior, Posterior
@@ -52,7 +54,7 @@ from .partitions import Block, Partition, log_stirling2_two
 
 __all__ = [
     "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "MapReassign", "SequentialSplitMerge", "GuidedSplitMerge",
-    "TrailingReallocation",
+    "WindowReallocation", "TrailingReallocation",
     "merge_log_q_ratio", "split_log_q_ratio", "initial_state", "apply_proposal",
 ]
 
@@ -420,21 +422,29 @@ class GuidedSplitMerge:
                 + self.exploration * candidates / np.count_nonzero(candidates))
 
 
-class TrailingReallocation:
-    """Allocate the last ``window`` detections again, jointly (block sampling for :class:`ptm.OnlineMapper`).
+class WindowReallocation:
+    """Allocate a window of ``window`` consecutive detections again, jointly (block sampling).
 
-    The window W is fixed by N alone, so the sets the other detections form,
-    T0 (T without W), are the same before and after the move. The members of W
-    join, in index order, one of the sets so far (those of T0 and the ones
-    earlier members of W opened) with weight exp(s(B + i) - s(B)), or a new
-    one with weight exp(s({i}) + log P_prior(N, k + 1) - log P_prior(N, k)),
+    The window W = [s, s + window) has its start s drawn uniformly from the
+    N - window + 1 possible ones, whatever the partition, so the sets the
+    other detections form, T0 (T without W), are the same before and after the
+    move, and each start is a move in detailed balance on its own. The members
+    of W join, in index order, one of the sets so far (those of T0 and the
+    ones earlier members of W opened) with weight exp(s(B + i) - s(B)), or a
+    new one with weight exp(s({i}) + log P_prior(N, k + 1) - log P_prior(N, k)),
     k >= 1 the number of sets so far (with none, a new set is the only
     option). log q(T -> T') is the sum of the chosen options' log
     probabilities; log q(T' -> T) replays T's own allocation from the same T0.
     Proposing T again is ``None``.
+
+    A stretch of corridor driven twice, or out and back (a U-turn: i + k
+    revisits j - k), closes only when all of its detections join their
+    places together; each single join can be worse than none, because the
+    first one bends the map against the others. Appearance allocates the
+    window's members one by one, and the odometry then judges the joint move.
     """
 
-    name = "trailing_reallocation"
+    name = "window_reallocation"
 
     def __init__(self, window: int = 8):
         self.window = count("window", window, minimum=1)
@@ -443,9 +453,9 @@ class TrailingReallocation:
         n = posterior.n
         if n == 1:
             return None
-        window = range(max(0, n - self.window), n)
+        window = self._window(rng, n)
         labels = state.partition.labels
-        kept = [tuple(member for member in block if member < window.start) for block in state.blocks]
+        kept = [tuple(member for member in block if member not in window) for block in state.blocks]
         left_behind = tuple(block for block in kept if block)
         old_home = {detection: labels[detection] for detection in window}
         forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window)
@@ -459,9 +469,25 @@ class TrailingReallocation:
         removed = tuple(index for index, block in enumerate(state.blocks) if block not in after)
         return Proposal(removed, added, log_q_reverse - log_q_forward)
 
+    def _window(self, rng, n: int) -> range:
+        """The detections allocated again: ``window`` consecutive ones from a uniform start."""
+        size = min(self.window, n)
+        start = _uniform_index(rng, n - size + 1)
+        return range(start, start + size)
+
+
+class TrailingReallocation(WindowReallocation):
+    """:class:`WindowReallocation` of the last ``window`` detections (for :class:`ptm.OnlineMapper`, where
+    the newest detections are the ones still undecided). The window is fixed by N alone."""
+
+    name = "trailing_reallocation"
+
+    def _window(self, rng, n: int) -> range:
+        return range(max(0, n - self.window), n)
+
 
 def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
-    """The sets after ``detections`` join ``left_behind`` one by one (:class:`TrailingReallocation`), and the
+    """The sets after ``detections`` join ``left_behind`` one by one (:class:`WindowReallocation`), and the
     log probability of that allocation; with ``old`` = (the blocks of T, each detection's block index in T),
     replay T's allocation instead of drawing one."""
     score, log_prior = posterior.block_score, posterior.log_prior_by_size
