@@ -41,8 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .diagnostics import chains_agree, effective_sample_size, split_rhat
-from .moves import (GibbsReassign, GuidedSplitMerge, MapReassign, SplitMerge, apply_proposal, initial_state,
-                    proposed_log_cheap, proposed_partition)
+from .moves import (GibbsReassign, GuidedSplitMerge, MapReassign, SplitMerge, WindowReallocation, apply_proposal,
+                    initial_state, proposed_log_cheap, proposed_partition)
 from ._validation import count
 from .partitions import Partition
 from .result import PTM
@@ -67,9 +67,10 @@ def default_moves():
 def guided_moves(posterior, surrogate):
     """Data-driven moves for many detections (docs/model.md §3.4): the guided split-merge (anchors by the pairs'
     Bayes factors), reassignment by the current map's prediction (``surrogate``, an
-    :class:`ptm.surrogate.OdometrySurrogate` of ``posterior``, best shared with delayed acceptance), and
-    Gibbs reassignment."""
-    return [(GuidedSplitMerge(posterior), 0.4), (MapReassign(surrogate), 0.2), (GibbsReassign(), 0.4)]
+    :class:`ptm.surrogate.OdometrySurrogate` of ``posterior``, best shared with delayed acceptance), Gibbs
+    reassignment, and the joint reallocation of a window of consecutive detections (a retraced corridor)."""
+    return [(GuidedSplitMerge(posterior), 0.35), (MapReassign(surrogate), 0.2), (GibbsReassign(), 0.35),
+            (WindowReallocation(), 0.1)]
 
 
 def guided_options(posterior, delayed_acceptance: bool = True) -> dict:
