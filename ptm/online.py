@@ -71,6 +71,11 @@ from .surrogate import OdometrySurrogate
 
 __all__ = ["OnlineMapper", "incremental_log_weight", "systematic_resample"]
 
+#: The surrogate's weight where it screens the rejuvenation's moves: whole, because a particle takes only a
+#: few steps per detection and each screened-out proposal saves a Laplace fit (over a 116-detection grid, at
+#: the batch samplers' half weight the last quarter's median update took 3.8 s against 1.7 s in full).
+REJUVENATION_SCREENING_TRUST = 1.0
+
 
 class OnlineMapper:
     """The posterior over topologies of a run that grows one detection at a time (sequential Monte Carlo).
@@ -152,7 +157,8 @@ class OnlineMapper:
             states = [initial_state(posterior, (0,))] * self.particles
             log_weights = np.zeros(self.particles)
         else:
-            surrogate = OdometrySurrogate(posterior) if posterior.has_global_terms else None
+            surrogate = (OdometrySurrogate(posterior, screening_trust=REJUVENATION_SCREENING_TRUST)
+                         if posterior.has_global_terms else None)
             states, log_weights = self._extended(posterior, surrogate)
             ess = _effective_sample_size(log_weights)
             self._ess.append(ess)

@@ -254,7 +254,7 @@ def _penalised_area(penalty_radius: float, max_penalty: float) -> float:
     return float(math.pi * penalty_radius * np.sum(weights * integrand))
 
 
-SCREENING_TRUST = 0.5  # the weight of a prediction where it steers a proposal or screens one (screening_change)
+SCREENING_TRUST = 0.5  # the default weight of a prediction where it steers or screens a proposal (screening_change)
 
 
 class OdometrySurrogate:
@@ -268,7 +268,11 @@ class OdometrySurrogate:
     moves again and again.
     """
 
-    def __init__(self, posterior, estimates_kept: int = MAP_ESTIMATES_KEPT, predictions_kept: int = 100_000):
+    def __init__(self, posterior, estimates_kept: int = MAP_ESTIMATES_KEPT, predictions_kept: int = 100_000,
+                 screening_trust: float = SCREENING_TRUST):
+        if not 0.0 < screening_trust <= 1.0:
+            raise ValueError(f"screening_trust must lie in (0, 1], got {screening_trust!r}")
+        self.screening_trust = float(screening_trust)
         self.terms = [term for term in posterior.global_terms if isinstance(term, OdometryTerm)]
         self._estimates = BoundedCache(estimates_kept)
         self._predictions = BoundedCache(predictions_kept)
@@ -296,17 +300,18 @@ class OdometrySurrogate:
         return change
 
     def screening_change(self, partition: Partition, removed, added) -> float:
-        """What proposals and the first stage of delayed acceptance use: ``SCREENING_TRUST`` times
-        :meth:`predicted_change`.
+        """What proposals and the first stage of delayed acceptance use: ``screening_trust`` (default
+        ``SCREENING_TRUST``) times :meth:`predicted_change`.
 
         The prediction overstates how much worse a split state is than its merge (its penalty sums pairs
         as if independent, Jensen's inequality in the split state), and it does so almost antisymmetrically,
         so a move whose forward and reverse predictions are both trusted in full pays the error twice in its
         Hastings ratio. Half the prediction is the locally balanced choice (Zanella 2020, g(t) = sqrt t):
         proposals lean towards what the map predicts, and a wrong prediction costs at most half of itself.
-        Any deterministic screening keeps the chain exact (the second stage corrects it).
+        Any deterministic screening keeps the chain exact (the second stage corrects it); full trust screens
+        out more and so costs fewer odometry evaluations (the online mapper's few rejuvenation steps).
         """
-        return SCREENING_TRUST * self.predicted_change(partition, removed, added)
+        return self.screening_trust * self.predicted_change(partition, removed, added)
 
     def approximate_log_likelihood(self, partition: Partition) -> float:
         """The surrogate's own value of the odometry terms for ``partition`` (:attr:`MapEstimate.log_likelihood`;

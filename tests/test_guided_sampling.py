@@ -14,7 +14,7 @@ the bound by a wide margin. Measured TV, correct / broken, at the seeds used:
   probability alone left out 0.035 at full trust: an accurate surrogate makes
   the move nearly a Gibbs step, which needs no correction);
 * the same target, surrogate delayed acceptance with the default moves: 0.019
-  (0.018 with the prediction at full weight, SCREENING_TRUST = 1); with the
+  (0.018 with the prediction at full weight, screening_trust = 1); with the
   guided moves and a warm-up: 0.010; two tempered ladders with the guided
   moves, the surrogate and a warm-up: 0.014. The broken twins run at full
   weight, where a wrong correction shows most: second stage without the
@@ -163,10 +163,9 @@ def test_negative_control_map_reassign_without_its_proposal_ratio_fails():
 
 
 @pytest.mark.parametrize("trust", [ptm.surrogate.SCREENING_TRUST, 1.0], ids=["default_trust", "full_trust"])
-def test_surrogate_delayed_acceptance_matches_the_exact_posterior(monkeypatch, trust):
-    monkeypatch.setattr(ptm.surrogate, "SCREENING_TRUST", trust)  # any deterministic screening keeps it exact
+def test_surrogate_delayed_acceptance_matches_the_exact_posterior(trust):
     posterior, exact = mixed_target(6)
-    surrogate = OdometrySurrogate(posterior)
+    surrogate = OdometrySurrogate(posterior, screening_trust=trust)  # any deterministic screening keeps it exact
     result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, delayed_acceptance=surrogate)
     assert ptm.total_variation(result, exact) < TOLERANCE
     assert result.diagnostics["surrogate"]["predictions"] > 0
@@ -196,10 +195,27 @@ def test_tempered_ladders_with_the_guided_options_match_the_exact_posterior():
 def test_negative_control_broken_second_stage_with_surrogate_fails(monkeypatch, broken, margin):
     posterior, exact = mixed_target(6)
     monkeypatch.setattr(ptm.sampler, "second_stage_log_ratio", broken)
-    monkeypatch.setattr(ptm.surrogate, "SCREENING_TRUST", 1.0)  # a broken correction shows most at full weight
-    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2,
-                      delayed_acceptance=OdometrySurrogate(posterior))
+    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2,  # a broken correction shows most in full
+                      delayed_acceptance=OdometrySurrogate(posterior, screening_trust=1.0))
     assert ptm.total_variation(result, exact) > margin * TOLERANCE
+
+
+@pytest.mark.parametrize("trust", [0.0, -0.5, 1.5, math.nan])
+def test_a_screening_trust_outside_the_unit_interval_is_refused(trust):
+    posterior, _ = mixed_target(6)
+    with pytest.raises(ValueError, match="screening_trust"):
+        OdometrySurrogate(posterior, screening_trust=trust)
+
+
+def test_the_screening_change_is_the_prediction_at_its_trust():
+    posterior, _ = mixed_target(6)
+    start = posterior.partition(range(posterior.n))
+    move = ([(0,), (5,)], [(0, 5)])
+    predicted = OdometrySurrogate(posterior).predicted_change(start, *move)
+    assert predicted != 0.0
+    for trust in (0.5, 1.0):
+        screened = OdometrySurrogate(posterior, screening_trust=trust).screening_change(start, *move)
+        assert screened == pytest.approx(trust * predicted, rel=1e-12)
 
 
 def test_coassignment_difference_between_chains_by_hand():
