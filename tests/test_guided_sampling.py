@@ -15,8 +15,8 @@ the bound by a wide margin. Measured TV, correct / broken, at the seeds used:
   the move nearly a Gibbs step, which needs no correction);
 * the same target, surrogate delayed acceptance with the default moves: 0.019
   (0.018 with the prediction at full weight, screening_trust = 1); with the
-  guided moves and a warm-up: 0.010; two tempered ladders with the guided
-  moves, the surrogate and a warm-up: 0.014. The broken twins run at full
+  guided moves (window reallocation included) and a warm-up: 0.024; two
+  tempered ladders with the guided moves, the surrogate and a warm-up: 0.010. The broken twins run at full
   weight, where a wrong correction shows most: second stage without the
   surrogate's correction 0.541 (> 3 x); second stage with the reverse
   prediction s_T'(T) left out 0.200 (> 2 x; at the default half weight 0.058,
