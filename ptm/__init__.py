@@ -29,7 +29,7 @@ from .prior import PoissonPrior
 from .result import PTM, total_variation
 from .sampler import mcmc
 from .tempering import tempered_mcmc
-from .tie_normaliser import TieNormaliser
+from .tie_normaliser import DeadReckonedTieNormaliser, TieNormaliser
 
 __all__ = [
     "AppearanceModel", "JointAppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
@@ -37,5 +37,6 @@ __all__ = [
     "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
     "predictive_pit",
     "mcmc", "moves", "OnlineMapper", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel", "TieNormaliser",
+    "DeadReckonedTieNormaliser",
 ]
 __version__ = "0.1.0"

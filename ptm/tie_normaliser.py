@@ -24,7 +24,10 @@ is the odometry model with a normalised landmark prior. It is not the
 paper's model; it is offered as an option. A comes from what a user knows
 (the size of the building) or from the run itself without labels
 (:meth:`TieNormaliser.from_dead_reckoning`: the bounding box of the
-dead-reckoned detections).
+dead-reckoned detections). :class:`DeadReckonedTieNormaliser` is that rule
+as an unbound model: each dataset it is bound to gets the area of its own
+dead-reckoned detections, so the online mapper, which binds its models anew
+to the detections so far, uses the area the robot has covered so far.
 
 The normaliser rewards a merge by about (n - 1) log(A / (2 pi sigma_T^2)),
 7-8 nats a pair on a 40 m grid at sigma_T = 0.53 m, that only the odometry
@@ -37,6 +40,9 @@ leaves it out (:meth:`ptm.Posterior.standalone_block_score`).
     >>> normaliser = TieNormaliser(area=1600.0, sigma_topology=2.0)
     >>> round(normaliser.block_log_likelihood((3,)), 3), round(normaliser.block_log_likelihood((0, 6)), 3)
     (0.0, 4.154)
+    >>> from ptm import Dataset
+    >>> DeadReckonedTieNormaliser(sigma_topology=2.0, margin=1.0).bind(Dataset(odometry=[[38.0, 0.0, 1.5708]]))
+    TieNormaliser(area=80, sigma_topology=2)
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ import numpy as np
 from ._validation import positive
 from .se2 import dead_reckoning
 
-__all__ = ["TieNormaliser"]
+__all__ = ["DeadReckonedTieNormaliser", "TieNormaliser"]
 
 
 class TieNormaliser:
@@ -65,13 +71,13 @@ class TieNormaliser:
     @classmethod
     def from_dead_reckoning(cls, dataset, sigma_topology: float, margin: float) -> "TieNormaliser":
         """A from the scored run itself: its dead-reckoned detections' bounding box, ``margin`` [m] added on
-        every side (for example the detection radius). No labels are read."""
-        if dataset.odometry is None:
+        every side (for example the detection radius). No labels are read. A single detection (no odometry
+        rows) spans the margin's square."""
+        if dataset.odometry is None and dataset.n != 1:
             raise ValueError("TieNormaliser.from_dead_reckoning needs a dataset with odometry")
-        margin = float(margin)
-        if not math.isfinite(margin) or margin < 0.0:
-            raise ValueError(f"margin must be a finite number >= 0, got {margin!r}")
-        extent = np.ptp(dead_reckoning(dataset.odometry)[:, :2], axis=0) + 2.0 * margin
+        margin = _margin(margin)
+        positions = np.zeros((1, 2)) if dataset.odometry is None else dead_reckoning(dataset.odometry)[:, :2]
+        extent = np.ptp(positions, axis=0) + 2.0 * margin
         area = float(np.prod(extent))
         if area <= 0.0:
             raise ValueError("the dead-reckoned detections span no area; give a margin > 0")
@@ -94,3 +100,29 @@ class TieNormaliser:
 
     def __repr__(self) -> str:
         return f"TieNormaliser(area={self.area:g}, sigma_topology={self.sigma_topology:g})"
+
+
+class DeadReckonedTieNormaliser:
+    """The unbound :class:`TieNormaliser` whose area is that of the detections it is bound to
+    (:meth:`TieNormaliser.from_dead_reckoning` with ``margin`` [m], for example the detection radius)."""
+
+    name = TieNormaliser.name
+    completes_global_term = True
+
+    def __init__(self, sigma_topology: float, margin: float):
+        self.sigma_topology = positive("sigma_topology", sigma_topology)
+        self.margin = _margin(margin)
+
+    def bind(self, dataset) -> TieNormaliser:
+        """The normaliser for ``dataset``'s dead-reckoned detections."""
+        return TieNormaliser.from_dead_reckoning(dataset, self.sigma_topology, self.margin)
+
+    def __repr__(self) -> str:
+        return f"DeadReckonedTieNormaliser(sigma_topology={self.sigma_topology:g}, margin={self.margin:g})"
+
+
+def _margin(margin) -> float:
+    margin = float(margin)
+    if not math.isfinite(margin) or margin < 0.0:
+        raise ValueError(f"margin must be a finite number >= 0, got {margin!r}")
+    return margin

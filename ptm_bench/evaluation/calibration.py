@@ -71,7 +71,7 @@ import ptm
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
 __all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
-           "prior_rate", "topology_sigma"]
+           "prior_rate", "tie_area_margin", "topology_sigma"]
 
 CONFIG = "config"
 
@@ -240,6 +240,15 @@ def topology_sigma(odometry_settings: dict, meta: dict) -> tuple[float, str]:
                          "(the detector's specification) to derive it from")
     factor, radius = float(odometry_settings["sigma_topology_factor"]), float(meta["detection_radius"])
     return factor * radius, f"sensor spec: {factor:g} x detection radius {radius:g} m"
+
+
+def tie_area_margin(meta: dict) -> float:
+    """The margin [m] added on every side of the dead-reckoned detections for the area of the normalised ties
+    (``odometry.tie_normaliser``): the detector's radius, a sensor specification."""
+    if "detection_radius" not in meta:
+        raise ValueError("odometry.tie_normaliser needs the detector's radius (dataset meta 'detection_radius') "
+                         "for the margin of the landmarks' area")
+    return float(meta["detection_radius"])
 
 
 def _materialised(held_out) -> list[ptm.Dataset]:

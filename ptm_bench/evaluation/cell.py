@@ -49,6 +49,7 @@ from ptm_bench.evaluation.calibration import (
     fitted_appearance,
     penalty_radius,
     prior_rate,
+    tie_area_margin,
     topology_sigma,
 )
 from ptm_bench.evaluation.datacache import dataset_for
@@ -132,10 +133,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
             sampling_coordinates=odometry["sampling_coordinates"], penalty_proposal=odometry["penalty_proposal"],
         ))
         if odometry["tie_normaliser"]:
-            if "detection_radius" not in dataset.meta:
-                raise ValueError("odometry.tie_normaliser needs the detector's radius (dataset meta "
-                                 "'detection_radius') for the margin of the landmarks' area")
-            margin = float(dataset.meta["detection_radius"])
+            margin = tie_area_margin(dataset.meta)
             normaliser = ptm.TieNormaliser.from_dead_reckoning(dataset, used["sigma_topology"], margin)
             used["tie_area"] = normaliser.area
             used["source_tie_area"] = (f"this run's dead-reckoned detections: bounding box + {margin:g} m (detection "

@@ -4,8 +4,9 @@
 The mapper sees each detection once, in order, so what a sweep takes from the whole scored run is not
 available: the appearance model is fitted with one prior mean for every run (the run's own mean signature
 is known only at its end), and the prior rate is a function of n (places per detection on the held-out
-runs x n, :func:`ptm_bench.evaluation.calibration.prior_rate`). The penalty radius comes from the
-held-out places and the tie from the detector's radius, as in a sweep.
+runs x n, :func:`ptm_bench.evaluation.calibration.prior_rate`), and so is the area of the normalised ties
+(``odometry.tie_normaliser``: :class:`ptm.DeadReckonedTieNormaliser`, the detections so far). The penalty
+radius comes from the held-out places and the tie from the detector's radius, as in a sweep.
 
     $ ptm-bench online intel.npz --calibration aces.npz fhw.npz acapulco.npz
 """
@@ -49,6 +50,11 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
                                        n_importance=settings["n_importance"], seed=seed,
                                        sampling_coordinates=settings["sampling_coordinates"],
                                        penalty_proposal=settings["penalty_proposal"]))
+        if settings["tie_normaliser"]:
+            margin = calibration.tie_area_margin(dataset.meta)
+            built.append(ptm.DeadReckonedTieNormaliser(used["sigma_topology"], margin))
+            used["source_tie_area"] = (f"the dead-reckoned detections so far: bounding box + {margin:g} m (detection "
+                                       "radius) on every side, no labels")
     share = calibration.places_per_detection(held_out)
     used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
                                  f"(held out) x n places")
