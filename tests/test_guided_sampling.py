@@ -37,7 +37,7 @@ from helpers import appearance_posterior
 from ptm.moves import GuidedSplitMerge, MapReassign, Proposal, initial_state
 from ptm.sampler import guided_moves, second_stage_log_ratio
 from ptm.surrogate import OdometrySurrogate
-from ptm_bench.evaluation.cell import GUIDED_FROM_N, resolved_burn_in, resolved_moves
+from ptm_bench.evaluation.cell import GUIDED_FROM_N, _sampler_options, resolved_burn_in, resolved_moves
 from test_odometry import mixed_target, square_loop_dataset
 from test_sampler import TOLERANCE
 from test_sampler_exactness import WithoutProposalRatio, total_variation_to_exact
@@ -233,6 +233,15 @@ def test_coassignment_difference_between_chains_by_hand():
 def test_auto_moves_are_guided_from_many_detections(n, expected):
     assert resolved_moves("auto", n) == expected
     assert resolved_moves("paper", n) == "paper"  # a named move set is kept
+
+
+@pytest.mark.parametrize("warm_up, moves, expected_steps", [
+    ("all", "default", ptm.sampler.WARM_UP_PER_DETECTION * 8), ("all", "paper", ptm.sampler.WARM_UP_PER_DETECTION * 8),
+    ("guided", "default", 0), ("guided", "guided", ptm.sampler.WARM_UP_PER_DETECTION * 8),
+])
+def test_every_move_set_warms_up_unless_only_guided_moves_should(warm_up, moves, expected_steps):
+    options = _sampler_options(moves, {"warm_up": warm_up, "delayed_acceptance": True}, appearance_posterior(8))
+    assert options["warm_up"] == expected_steps
 
 
 def test_default_burn_in_is_half_the_chain_and_a_set_one_is_kept():

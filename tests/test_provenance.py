@@ -155,8 +155,9 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     assert inference["source_penalty_radius"].startswith("calibrated: 0.75 x ")
     assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.place_separation(
         calibration.calibration_datasets(cells[0])))
-    assert inference["source_sigma_topology"] == "sensor spec: 2 x detection radius 0.5 m"
-    assert inference["sigma_topology"] == pytest.approx(1.0)
+    assert inference["source_sigma_topology"] == "sensor spec: 0.7071 x detection radius 0.5 m"
+    assert inference["sigma_topology"] == pytest.approx(0.35355)
+    assert inference["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
     assert inference["source_appearance"] == ("empirical Bayes (independent) on 2 held-out runs around each run's mean; "
                                            "prior mean = this run's mean signature")
     assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs"
@@ -230,14 +231,14 @@ def test_auto_method_is_exact_up_to_its_limit_and_tempered_beyond(tmp_path, exac
 
 
 def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead_reckoning(tmp_path):
+    cell = cells_with_cached_datasets(tmp_path)[0]  # the default: normalised ties
     config = copy.deepcopy(CONFIG)
-    config["odometry"]["tie_normaliser"] = True
-    cell = cells_with_cached_datasets(tmp_path, config)[0]
-    plain_cell = cells_with_cached_datasets(tmp_path / "plain")[0]
+    config["odometry"]["tie_normaliser"] = False
+    plain_cell = cells_with_cached_datasets(tmp_path / "plain", config)[0]
     scored = datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"])
     normalised, used = build_posterior(cell, scored)
     plain, plain_used = build_posterior(plain_cell, scored)
-    expected = ptm.TieNormaliser.from_dead_reckoning(scored, 1.0, 0.5)  # sigma_T = 2 x radius 0.5; margin 0.5
+    expected = ptm.TieNormaliser.from_dead_reckoning(scored, 0.35355, 0.5)  # sigma_T = 0.7071 x radius 0.5; margin 0.5
     assert used["tie_area"] == pytest.approx(expected.area)
     assert used["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
     assert "tie_area" not in plain_used
@@ -247,25 +248,26 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     assert expected.log_likelihood(plain.partition(scored.labels)) > 0  # merges gain: the lean to all-distinct is gone
 
 
-@pytest.mark.parametrize("key, old_value, other_value, invalid, refusal", [
-    ("tie_normaliser", False, True, 1, "tie_normaliser must be true or false"),
-    ("sampling_coordinates", "poses", "increments", "world", "sampling_coordinates"),  # added with a new default
-    ("penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
+@pytest.mark.parametrize("section, key, old_value, other_value, invalid, refusal", [
+    ("odometry", "tie_normaliser", False, True, 1, "tie_normaliser must be true or false"),
+    ("odometry", "sampling_coordinates", "poses", "increments", "world", "sampling_coordinates"),  # a new default
+    ("odometry", "penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
+    ("inference", "warm_up", "guided", "all", "some", "inference.warm_up"),  # and this
 ])
-def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, key, old_value,
+def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):
-    def cells(odometry):
-        config = {**CONFIG, "odometry": {**CONFIG["odometry"], **odometry}}
+    def cells(overrides):
+        config = {**CONFIG, section: {**CONFIG.get(section, {}), **overrides}}
         return experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(config)), tmp_path)
 
     # the rows computed before the key are those of a config pinned to its old value: they stay fresh
     pinned = cells({key: old_value})[0]
-    before_the_key = {**pinned, "settings": {**pinned["settings"], "odometry": {
-        name: value for name, value in pinned["settings"]["odometry"].items() if name != key}}}
+    before_the_key = {**pinned, "settings": {**pinned["settings"], section: {
+        name: value for name, value in pinned["settings"][section].items() if name != key}}}
     before_the_key.pop("definition")
     assert experiment._definition(before_the_key) == pinned["definition"]
     assert pinned["definition"] != cells({key: other_value})[0]["definition"]   # the inference cell changes
-    default_is_old = experiment.DEFAULTS["odometry"][key] == old_value
+    default_is_old = experiment.DEFAULTS[section][key] == old_value
     assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
     with pytest.raises(ValueError, match=refusal):
         cells({key: invalid})

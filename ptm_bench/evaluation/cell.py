@@ -216,12 +216,13 @@ def resolved_burn_in(inference: dict) -> int:
 
 
 def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
-    """The sampler's moves and delayed acceptance for a resolved move set (:func:`resolved_moves`), with the
-    warm-up of ``"guided"`` (docs/model.md §3.4)."""
+    """The sampler's moves, delayed acceptance and warm-up for a resolved move set (:func:`resolved_moves`):
+    ``"guided"`` always warms up (docs/model.md §3.4), the others with ``inference.warm_up = "all"``."""
     if moves == "guided":
         return ptm.sampler.guided_options(posterior, inference["delayed_acceptance"])
     chosen = [(ptm.moves.SplitMerge(), 1.0)] if moves == "paper" else None
-    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"]}
+    warm_up = ptm.sampler.WARM_UP_PER_DETECTION * posterior.n if inference["warm_up"] == "all" else 0
+    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up}
 
 
 def disagreement(diagnostics: dict) -> str:
