@@ -407,8 +407,9 @@ class SampleRecorder:
 
     def convergence(self) -> dict:
         """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain), and
-        for several chains the largest difference between two chains' co-assignments and the chains'
-        coverage of the visited topologies (:meth:`chain_coverage`); else {}."""
+        for several chains the largest difference between two chains' co-assignments, the chains'
+        coverage of the visited topologies (:meth:`chain_coverage`) and the estimate resolved
+        (:meth:`resolved_estimate`); else {}."""
         self.flush()
         recorded = sum(self.counts.values())
         if self._convergence[0] == recorded:
@@ -422,6 +423,7 @@ class SampleRecorder:
         if chains > 1:
             diagnostics["coassignment_max_difference"] = self.coassignment_max_difference()
             diagnostics["chain_coverage_min"] = self.chain_coverage()
+            diagnostics["estimate"] = self.resolved_estimate()  # what ptm.diagnostics.chains_agree judges by
         self._convergence = (recorded, diagnostics)
         return dict(diagnostics)
 

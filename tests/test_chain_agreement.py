@@ -2,7 +2,8 @@
 
 Chains disagree when the split R-hat of log P or of the number of places is
 above 1.05, or two chains' co-assignment matrices are more than 0.05 apart
-(``ptm.diagnostics.chains_agree``). The samplers then double the chains'
+(``ptm.diagnostics.chains_agree``); where the estimate is renormalised the
+co-assignments alone decide. The samplers then double the chains'
 length, up to ``max_doublings`` times, and an extended run keeps exactly the
 samples of a run started at the final length. A cell's row carries a
 ``warning`` when its chains still disagree, with the values reached, and the
@@ -39,6 +40,33 @@ def test_each_disagreement_is_reported_with_every_value_reached(name, value, sho
     message = disagreement({**AGREE, name: value})
     assert message.startswith("independent chains disagree") and shown in message
     assert "(want <= 1.05)" in message and "(<= 0.05)" in message
+
+
+def test_renormalised_estimates_are_judged_by_their_co_assignments_alone():
+    """The renormalised probabilities do not count visits, so R-hats of the traces (which measure whether visit
+    frequencies settled) do not decide; the chains' own estimates must still agree."""
+    settled = {"rhat_log_prob": 1.6, "rhat_num_places": 2.1, "coassignment_max_difference": 1e-40,
+               "estimate": "renormalised"}
+    assert ptm.diagnostics.chains_agree(settled) is True and disagreement(settled) == ""
+    assert ptm.diagnostics.chains_agree({**settled, "estimate": "frequency"}) is False  # the negative control
+    apart = {**settled, "coassignment_max_difference": 0.3}
+    message = disagreement(apart)
+    assert ptm.diagnostics.chains_agree(apart) is False
+    assert "difference 0.3 (<= 0.05) between the chains' renormalised estimates" in message
+    assert "split R-hat of log P 1.6, of the number of places 2.1: not judged" in message
+
+
+def test_a_renormalising_run_stops_where_its_estimates_agree():
+    """A run whose estimate renormalises records the estimate its agreement was judged by, and is not run on
+    once its chains' estimates agree."""
+    clear = ptm.Posterior(ptm.Dataset(signatures=np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]])),
+                          ptm.PoissonPrior(2.0), [ptm.AppearanceModel(0.3, 0.05, 3.0, 2e-4)])
+    result = ptm.mcmc(clear, 200, seed=1, chains=4, max_doublings=3, estimate="renormalised")
+    assert result.diagnostics["estimate"] == "renormalised"
+    assert result.diagnostics["coassignment_max_difference"] <= 0.05 and result.diagnostics["doublings"] == 0
+    assert result.diagnostics["rhat_log_prob"] > 1.05  # measured 1.38: the R-hats would have run it on
+    counted = ptm.mcmc(clear, 200, seed=1, chains=4, max_doublings=3, estimate="frequency")
+    assert counted.diagnostics["doublings"] >= 1  # the same chains, judged by visit frequencies (measured: 3)
 
 
 def test_the_sweep_reports_the_cells_that_warn(tmp_path, capsys):

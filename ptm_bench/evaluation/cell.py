@@ -238,9 +238,14 @@ def disagreement(diagnostics: dict) -> str:
         return ""
     rhat, coassignment = ptm.diagnostics.AGREEMENT_RHAT, ptm.diagnostics.AGREEMENT_COASSIGNMENT
     doublings = diagnostics.get("doublings", 0)
-    return (f"independent chains disagree: split R-hat of log P {diagnostics['rhat_log_prob']:.3g} (want <= {rhat}), "
-            f"of the number of places {diagnostics['rhat_num_places']:.3g} (<= {rhat}), largest co-assignment "
-            f"difference {diagnostics['coassignment_max_difference']:.3g} (<= {coassignment})"
+    judged = diagnostics.get("estimate") != "renormalised"  # the R-hats count (ptm.diagnostics.chains_agree)
+    rhats = (f"split R-hat of log P {diagnostics['rhat_log_prob']:.3g}" + f" (want <= {rhat})" * judged
+             + f", of the number of places {diagnostics['rhat_num_places']:.3g}" + f" (<= {rhat})" * judged)
+    difference = f"largest co-assignment difference {diagnostics['coassignment_max_difference']:.3g} (<= {coassignment})"
+    reached = (f"{rhats}, {difference}" if judged else
+               f"{difference} between the chains' renormalised estimates ({rhats}: not judged, as the estimate "
+               "does not count visits)")
+    return (f"independent chains disagree: {reached}"
             + (f", after doubling the chains {doublings} time{'s' * (doublings != 1)}" if doublings else "")
             + '; the PTM is not converged: sample longer (inference.n_samples, inference.max_doublings), or try '
               'inference.method = "tempered"')
