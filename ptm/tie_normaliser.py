@@ -21,7 +21,8 @@ the set's size only, so :class:`TieNormaliser` is a decomposable term, scored
 with the prior and appearance (the cheap part of the posterior), and
 ``Posterior(dataset, prior, [odometry_model, TieNormaliser(area, sigma_T)])``
 is the odometry model with a normalised landmark prior. It is not the
-paper's model; it is offered as an option. A comes from what a user knows
+paper's model; the library offers it as an option (the harness adds it by
+default, ``odometry.tie_normaliser``). A comes from what a user knows
 (the size of the building) or from the run itself without labels
 (:meth:`TieNormaliser.from_dead_reckoning`: the bounding box of the
 dead-reckoned detections). :class:`DeadReckonedTieNormaliser` is that rule

@@ -241,7 +241,8 @@ def disagreement(diagnostics: dict) -> str:
     judged = diagnostics.get("estimate") != "renormalised"  # the R-hats count (ptm.diagnostics.chains_agree)
     rhats = (f"split R-hat of log P {diagnostics['rhat_log_prob']:.3g}" + f" (want <= {rhat})" * judged
              + f", of the number of places {diagnostics['rhat_num_places']:.3g}" + f" (<= {rhat})" * judged)
-    difference = f"largest co-assignment difference {diagnostics['coassignment_max_difference']:.3g} (<= {coassignment})"
+    difference = (f"largest co-assignment difference {diagnostics['coassignment_max_difference']:.3g} "
+                  f"(<= {coassignment})")
     reached = (f"{rhats}, {difference}" if judged else
                f"{difference} between the chains' renormalised estimates ({rhats}: not judged, as the estimate "
                "does not count visits)")
