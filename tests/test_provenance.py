@@ -14,6 +14,7 @@ runs the simulator.
 
 import copy
 import math
+import re
 
 import numpy as np
 import pytest
@@ -158,8 +159,9 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     assert inference["source_sigma_topology"] == "sensor spec: 0.7071 x detection radius 0.5 m"
     assert inference["sigma_topology"] == pytest.approx(0.35355)
     assert inference["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
-    assert inference["source_appearance"] == ("empirical Bayes (independent) on 2 held-out runs around each run's mean; "
-                                           "prior mean = this run's mean signature")
+    assert re.fullmatch(r"empirical Bayes \(independent, outlier share [0-9.e-]+ at [0-9.]+ x the variance\) on 2 "
+                        r"held-out runs around each run's mean; prior mean = this run's mean signature",
+                        inference["source_appearance"])
     assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs"
     assert inference["aliasing_auc"] == baseline["aliasing_auc"] == 0.93
 

@@ -2,11 +2,12 @@
 (docs/model.md §3.8; :mod:`ptm_bench.evaluation.calibration`).
 
 The mapper sees each detection once, in order, so what a sweep takes from the whole scored run is not
-available: the appearance model is fitted with one prior mean for every run (the run's own mean signature
-is known only at its end), and the prior rate is a function of n (places per detection on the held-out
-runs x n, :func:`ptm_bench.evaluation.calibration.prior_rate`), and so is the area of the normalised ties
-(``odometry.tie_normaliser``: :class:`ptm.DeadReckonedTieNormaliser`, the detections so far). The penalty
-radius comes from the held-out places and the tie from the detector's radius, as in a sweep.
+available: the appearance model (the harness's default, rare outlier visits included) is fitted with one
+prior mean for every run (the run's own mean signature is known only at its end), and the prior rate is
+a function of n (places per detection on the held-out runs x n,
+:func:`ptm_bench.evaluation.calibration.prior_rate`), and so is the area of the normalised ties
+(``odometry.tie_normaliser``: :class:`ptm.DeadReckonedTieNormaliser`, the detections so far). The
+penalty radius comes from the held-out places and the tie from the detector's radius, as in a sweep.
 
     $ ptm-bench online intel.npz --calibration aces.npz fhw.npz acapulco.npz
 """
@@ -18,7 +19,7 @@ from collections.abc import Callable, Sequence
 import ptm
 
 from ptm_bench.evaluation import calibration
-from ptm_bench.evaluation.experiment import DEFAULTS, MODEL_NAMES
+from ptm_bench.evaluation.experiment import DEFAULTS, MODEL_NAMES, resolved_appearance
 
 __all__ = ["calibrated_mapper", "replay"]
 
@@ -38,7 +39,10 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
     if "appearance" in models:
         if dataset.signatures is None:
             raise ValueError("the dataset has no signatures for the appearance model")
-        model, used["source_appearance"] = calibration.fitted_appearance(held_out, prior_mean="global")
+        appearance = resolved_appearance(DEFAULTS["appearance"])
+        model, used["source_appearance"] = calibration.fitted_appearance(
+            held_out, appearance["model"], appearance["evidence"], prior_mean="global", outliers=appearance["outliers"],
+            max_outlier_share=appearance["max_outlier_share"])
         built.append(model)
     if "odometry" in models:
         if dataset.odometry is None:
