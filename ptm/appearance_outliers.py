@@ -126,8 +126,24 @@ def outlier_log_evidence(centred, kappa, alpha, beta, share: float, scale: float
     """
     n = centred.shape[-2]
     masks, counts = outlier_configurations(n, max_outliers)
-    return logsumexp(_log_prior(n, counts, share, max_outliers)
-                     + _log_evidence_given(centred, masks, counts, kappa, alpha, beta, scale), axis=-1)
+    return _logsumexp_last(_configuration_log_prior(n, share, max_outliers)
+                           + _log_evidence_given(centred, masks, counts, kappa, alpha, beta, scale))
+
+
+@lru_cache(maxsize=1024)
+def _configuration_log_prior(n: int, share: float, max_outliers: int) -> np.ndarray:
+    """log P(z | n) of each configuration of :func:`outlier_configurations`, read-only (the set scores' inner
+    loop asks for the same few sizes again and again)."""
+    log_prior = _log_prior(n, outlier_configurations(n, max_outliers)[1], share, max_outliers)
+    log_prior.flags.writeable = False
+    return log_prior
+
+
+def _logsumexp_last(values: np.ndarray) -> np.ndarray:
+    """log sum exp over the last axis of finite values: ``scipy.special.logsumexp(values, axis=-1)`` without
+    its argument handling, which took four fifths of a set's evidence (about 200 us a call)."""
+    largest = values.max(axis=-1)
+    return largest + np.log(np.exp(values - largest[..., None]).sum(axis=-1))
 
 
 class StudentTMixture:
