@@ -6,12 +6,12 @@ eight seeds (0-7), recorded in each test's docstring (``run_conditions(folder,
 seeds=range(8))`` repeats them, 6-8 minutes on two cores); CI runs the
 first three seeds, and every threshold leaves room for a bad seed among them.
 
-Measured with the decor simulator (``GENERATOR_VERSION`` 3) and the harness's defaults of 2026-12-04
-(ties of sd r / sqrt 2, normalised; every chain warmed up; rare outlier visits in appearance): at aliasing 1 every place carries the same decor
-and the corridor layout is hidden, so appearance stops making the posterior certain on ``nested_loops`` and
-pulls ``short_loop``'s congruent corners together. These configurations sample with plain MCMC (four chains
-of 3 000 steps, doubled up to twice where they disagree). The sweeps in ``experiments/`` use exact
-posteriors or tempering instead.
+Measured with the decor simulator (``GENERATOR_VERSION`` 3) and the harness's defaults of 2026-12-04 (ties of
+sd r / sqrt 2, normalised; every chain warmed up; rare outlier visits in appearance): at aliasing 1 every
+place carries the same decor and the corridor layout is hidden, so appearance stops making the posterior
+certain on ``nested_loops`` and may pull ``short_loop``'s congruent corners together. These configurations sample
+with plain MCMC (four chains of 3 000 steps, doubled up to twice where they disagree). The sweeps in
+``experiments/`` use exact posteriors or tempering instead.
 """
 
 import copy
