@@ -45,6 +45,23 @@ def test_the_replay_is_the_mappers_own_result_for_one_seed(runs):
     assert len(first.diagnostics["latency_s"]) == dataset.n
 
 
+def test_the_mapper_uses_the_harness_appearance_default(runs, monkeypatch):
+    from ptm_bench.evaluation import experiment
+
+    dataset, held_out = ptm.Dataset.load(runs[0]), [ptm.Dataset.load(runs[10]), ptm.Dataset.load(runs[11])]
+
+    def fitted(outliers):
+        monkeypatch.setitem(experiment.DEFAULTS["appearance"], "outliers", outliers)
+        mapper, used = calibrated_mapper(dataset, held_out, ["appearance"], particles=8)
+        (model,) = mapper.models
+        return model, used["source_appearance"]
+
+    model, source = fitted("auto")   # the default: rare outlier visits, the share at most 0.1
+    assert 0.0 < model.outlier_share <= 0.1 and "outlier share" in source
+    model, source = fitted(False)    # the paper's model, when the default says so
+    assert model.outlier_share == 0.0 and "outlier share" not in source
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--calibration", "SELF"], "is the replayed dataset itself"),
     (["--calibration", "UNLABELLED"], "held-out run 0 has no labels"),
