@@ -11,9 +11,22 @@ def test_import_a_shipped_log(tmp_path, capsys):
     out = tmp_path / "aces.npz"
     assert main(["import-carmen", "aces", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "N = 55 detections of 40 places, 15 revisits, path 323 m" in printed
+    assert "N = 53 detections of 41 places, 12 revisits, path 298 m" in printed
+    assert "calibration drive: the first 25 m (40 scans, not scored)" in printed
     dataset = ptm.Dataset.load(out)
-    assert dataset.n == 55 and dataset.meta["world"] == "aces" and dataset.odometry_cov is not None
+    assert dataset.n == 53 and dataset.meta["world"] == "aces" and dataset.odometry_cov is not None
+
+
+def test_without_a_calibration_drive_the_whole_log_is_scored(tmp_path, capsys):
+    out = tmp_path / "aces.npz"
+    assert main(["import-carmen", "aces", "--out", str(out), "--calibration-drive", "0"]) == 0
+    assert "calibration drive" not in capsys.readouterr().out
+    assert ptm.Dataset.load(out).meta["calibration_drive"] is None
+
+
+def test_a_calibration_drive_longer_than_the_log_is_an_error(tmp_path, capsys):
+    assert main(["import-carmen", "aces", "--out", str(tmp_path / "x.npz"), "--calibration-drive", "5000"]) == 2
+    assert "shorter than 5000 m" in capsys.readouterr().err
 
 
 def test_a_spacing_that_yields_one_place_is_an_error(tmp_path, capsys):

@@ -16,13 +16,14 @@ from ptm_bench.simulation.odometry_noise import OdometryNoise
 NOISE = NoiseFit(model=OdometryNoise(), floor_xy=0.01, floor_theta=0.005, per_log={"other": {}})
 
 
-def _square_log(laps: int = 2, side: float = 10.0, step: float = 0.5) -> CarmenLog:
-    """A square of 10 m sides driven ``laps`` times; the raw odometry turns 1 % more than the reference."""
+def _square_log(laps: int = 2, side: float = 10.0, step: float = 0.5, drift: float = 0.0) -> CarmenLog:
+    """A square of 10 m sides driven ``laps`` times; the raw odometry turns 1 % more than the reference and
+    drifts ``drift`` rad per metre."""
     per_side = int(side / step)
     one_side = [[step, 0.0, 0.0]] * (per_side - 1) + [[step, 0.0, np.pi / 2]]
     reference_steps = np.array(one_side * 4 * laps)
     reference = dead_reckoning(reference_steps)
-    raw = reference_steps * [1.0, 1.0, 1.01]
+    raw = reference_steps * [1.0, 1.0, 1.01] + [0.0, 0.0, drift * step]
     n = len(reference)
     return CarmenLog(source="square.log", form="plain", timestamps=np.arange(n, dtype=float),
                      ranges=tuple(np.full(180, 3.0 + (k % 40) / 10) for k in range(n)), scan_poses=reference,
@@ -69,9 +70,32 @@ def test_noise_fitted_on_the_log_itself_is_refused():
         import_carmen("aces", calibration=["fhw", "aces"])
 
 
+def test_a_calibration_drive_takes_the_robots_drift_out_and_is_not_scored():
+    """The first metres calibrate the heading drift, which the rows then no longer have; no detection is
+    made on the drive, and its scans' labels and poses are not in the dataset."""
+    log = _square_log(laps=3, drift=0.02)
+    noise = NoiseFit(model=OdometryNoise(), floor_xy=0.01, floor_theta=0.005, per_log={"other": {}},
+                     calibration_drive=20.0)
+    raw_dataset, driven = log_dataset(log, NOISE, 5.0, 1.0), log_dataset(log, noise, 5.0, 1.0)
+    drive = driven.meta["calibration_drive"]
+    assert drive["metres"] == 20.0 and drive["scans"] == 41 and drive["heading_drift"] == pytest.approx(0.02, abs=2e-3)
+    assert min(driven.meta["scans"]) >= drive["scans"] - 1 and driven.n < raw_dataset.n
+    scans = np.array(driven.meta["scans"])
+    raw_poses = dead_reckoning(log.raw_increments)
+    reference_turns = relative_pose(log.reference[scans[:-1]], log.reference[scans[1:]])[:, 2]
+    raw_turns = relative_pose(raw_poses[scans[:-1]], raw_poses[scans[1:]])[:, 2]
+    assert np.abs(driven.odometry[:, 2] - reference_turns).max() < 0.25 * np.abs(raw_turns - reference_turns).max()
+    np.testing.assert_allclose(driven.true_poses, log.reference[scans])
+    with pytest.raises(ValueError, match="leaves nothing"):
+        log_dataset(_square_log(laps=1), NoiseFit(OdometryNoise(), 0.01, 0.005, {"other": {}}, 39.9), 5.0, 1.0)
+
+
 def test_shipped_log_defaults():
-    """ACES with the defaults: 55 detections of 40 places; the noise comes from the three other logs."""
+    """ACES with the defaults: 53 detections of 41 places after a 25 m calibration drive; the noise comes
+    from the three other logs, whose drives leave a drift of a few mrad/m (their robots' drifts differ by 37)."""
     dataset = import_carmen("aces")
-    assert dataset.n == 55 and len(set(dataset.labels)) == 40
-    assert dataset.meta["odometry_noise"]["fitted_on"] == ["acapulco", "fhw", "intel"]
+    assert dataset.n == 53 and len(set(dataset.labels)) == 41
+    noise = dataset.meta["odometry_noise"]
+    assert noise["fitted_on"] == ["acapulco", "fhw", "intel"] and noise["calibration_drive"] == 25.0
+    assert noise["drift_sigma"] < 0.01 < max(abs(entry["heading_drift"]) for entry in noise["per_log"].values())
     assert np.all(np.linalg.eigvalsh(dataset.odometry_cov) > 0)

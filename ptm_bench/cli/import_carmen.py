@@ -1,8 +1,10 @@
 """``ptm-bench import-carmen``: turn a CARMEN log into a dataset file with ground truth from its reference.
 
-Places are chosen on the log's reference trajectory, detections fire at the
-closest approach within the detection radius, odometry rows are the raw
-odometry between detections with covariances from a noise model fitted on
+The log's first metres are a calibration drive that measures the robot's
+systematic odometry errors (not scored); places are chosen on the rest of its
+reference trajectory, detections fire at the closest approach within the
+detection radius, odometry rows are the raw odometry between detections with
+the systematic errors taken out and covariances from a noise model fitted on
 other logs (ptm_bench.logs.detections). A shipped log is named by its name.
 
     $ ptm-bench import-carmen intel --out intel.npz
@@ -17,7 +19,8 @@ from pathlib import Path
 
 from ptm_bench.cli.options import dataset_output
 from ptm_bench.logs.carmen import SHIPPED_LOGS
-from ptm_bench.logs.detections import DEFAULT_DETECTION_RADIUS, DEFAULT_PLACE_SPACING, import_carmen
+from ptm_bench.logs.detections import (DEFAULT_CALIBRATION_DRIVE, DEFAULT_DETECTION_RADIUS, DEFAULT_PLACE_SPACING,
+                                       import_carmen)
 
 
 def register(subparsers) -> None:
@@ -34,6 +37,9 @@ def register(subparsers) -> None:
     parser.add_argument("--detection-radius", type=float, default=DEFAULT_DETECTION_RADIUS,
                         help=f"a visit is a run of scans within this radius of a place [m] "
                              f"(default {DEFAULT_DETECTION_RADIUS:g}; at most half the spacing)")
+    parser.add_argument("--calibration-drive", type=float, default=DEFAULT_CALIBRATION_DRIVE, metavar="M",
+                        help=f"the log's first M metres calibrate the robot's odometry (scale, drift) and are not "
+                             f"scored; 0: none (default {DEFAULT_CALIBRATION_DRIVE:g})")
     parser.add_argument("--noise-from", nargs="+", metavar="LOG",
                         help="logs to fit the odometry noise on (default: the shipped logs other than this one)")
     parser.set_defaults(handler=_run_import)
@@ -43,7 +49,7 @@ def _run_import(args) -> int:
     out = dataset_output(args.out)
     started = time.perf_counter()
     dataset = import_carmen(args.log, place_spacing=args.place_spacing, detection_radius=args.detection_radius,
-                            calibration=args.noise_from)
+                            calibration=args.noise_from, calibration_drive=args.calibration_drive)
     try:
         dataset.save(out)
     except OSError as error:
@@ -55,5 +61,9 @@ def _run_import(args) -> int:
           f"{dataset.n - places} revisits, path {meta['path_length']:.0f} m, spacing {meta['place_spacing']:g} m, "
           f"radius {meta['detection_radius']:g} m, laser aliasing AUC {meta['aliasing_auc']:.2f}, "
           f"{time.perf_counter() - started:.1f} s")
+    drive = meta["calibration_drive"]
+    if drive is not None:
+        print(f"calibration drive: the first {drive['metres']:g} m ({drive['scans']} scans, not scored): scale error "
+              f"{drive['scale_error']:+.4f}, heading drift {drive['heading_drift']:+.4f} rad/m, taken out of the odometry")
     print(f"odometry noise fitted on {', '.join(noise.pop('fitted_on'))}: {json.dumps(noise)}")
     return 0

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import gzip
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -94,8 +94,31 @@ class CarmenLog:
 
     def path_length(self) -> float:
         """Length [m] of the reference trajectory (of the dead-reckoned one without a reference)."""
+        return float(self._distances().sum())
+
+    def scan_at_path_length(self, metres: float) -> int:
+        """The first scan at least ``metres`` along the path (:meth:`path_length`'s trajectory) from the first;
+        ``ValueError`` when the whole log is shorter."""
+        travelled = np.cumsum(self._distances())
+        if not travelled.size or travelled[-1] < metres:
+            raise ValueError(f"{self.source}: the log's path is {self.path_length():.1f} m long, shorter than "
+                             f"{metres:g} m")
+        return int(np.searchsorted(travelled, metres)) + 1
+
+    def segment(self, start: int, stop: int) -> "CarmenLog":
+        """Scans ``start .. stop - 1`` as a log of their own (the increments between them; ``params`` and
+        ``time_reversals`` those of the whole log)."""
+        if not 0 <= start < stop <= self.n_scans:
+            raise ValueError(f"a segment of {self.n_scans} scans is 0 <= start < stop <= {self.n_scans}, "
+                             f"got {start}, {stop}")
+        return replace(self, timestamps=self.timestamps[start:stop], ranges=self.ranges[start:stop],
+                       scan_poses=self.scan_poses[start:stop], raw_increments=self.raw_increments[start:stop - 1],
+                       reference=None if self.reference is None else self.reference[start:stop],
+                       lines=self.lines[start:stop])
+
+    def _distances(self) -> np.ndarray:
         poses = self.reference if self.reference is not None else self.odometry_poses()
-        return float(np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1).sum())
+        return np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1)
 
 
 def shipped_log(name: str) -> Path:

@@ -100,6 +100,10 @@ class OdometrySteps:
     scale_error: float  # the run's drawn translation-scale error s
     heading_drift: float  # the run's drawn heading drift d [rad/m]
     model: OdometryNoise
+    #: (rot1, trans, rot2) of every increment, where the caller decomposed them otherwise than :func:`decompose`
+    #: (real logs: turns on the spot and reversing, :func:`ptm_bench.logs.noise_fit.motion_components`); None:
+    #: :func:`decompose`. The covariance propagation differentiates the increments in these components.
+    motion: tuple | None = None
 
 
 def decompose(increments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +156,8 @@ def _row_covariance(steps: OdometrySteps, start: int, stop: int) -> np.ndarray:
     covariance = np.zeros((5, 5))
     covariance[3, 3] = (model.level * model.scale_sigma) ** 2
     covariance[4, 4] = (model.level * model.drift_sigma) ** 2
-    rot1, trans, _ = decompose(steps.increments[start:stop])
+    rot1, trans, _ = (decompose(steps.increments[start:stop]) if steps.motion is None
+                      else (component[start:stop] for component in steps.motion))
     pose = np.zeros(3)
     transition = np.eye(5)
     noise_map = np.zeros((5, 3))
