@@ -158,7 +158,8 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
         calibration.calibration_datasets(cells[0])))
     assert inference["source_sigma_topology"] == "sensor spec: 0.7071 x detection radius 0.5 m"
     assert inference["sigma_topology"] == pytest.approx(0.35355)
-    assert inference["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
+    assert inference["source_tie_area"].startswith("this run's dead-reckoned detections: within 0.5 m (the detection "
+                                                   "radius) of their route")
     assert re.fullmatch(r"empirical Bayes \(independent, outlier share [0-9.e-]+ at [0-9.]+ x the variance\) on 2 "
                         r"held-out runs around each run's mean; prior mean = this run's mean signature",
                         inference["source_appearance"])
@@ -242,8 +243,14 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     plain, plain_used = build_posterior(plain_cell, scored)
     expected = ptm.TieNormaliser.from_dead_reckoning(scored, 0.35355, 0.5)  # sigma_T = 0.7071 x radius 0.5; margin 0.5
     assert used["tie_area"] == pytest.approx(expected.area)
-    assert used["source_tie_area"].startswith("this run's dead-reckoned detections: bounding box + 0.5 m")
+    assert used["source_tie_area"].startswith("this run's dead-reckoned detections: within 0.5 m (the detection "
+                                              "radius) of their route")
     assert "tie_area" not in plain_used
+    config["odometry"].update(tie_normaliser=True, tie_area="bounding_box")
+    boxed, boxed_used = build_posterior(cells_with_cached_datasets(tmp_path / "box", config)[0], scored)
+    box = ptm.TieNormaliser.from_dead_reckoning(scored, 0.35355, 0.5, "bounding_box")
+    assert boxed_used["tie_area"] == pytest.approx(box.area) and box.area > used["tie_area"]
+    assert "bounding box + 0.5 m" in boxed_used["source_tie_area"]
     for labels in (scored.labels, np.zeros(scored.n, dtype=int), np.arange(scored.n)):
         gain = expected.log_likelihood(plain.partition(labels))
         assert normalised.log_prob(labels) - plain.log_prob(labels) == pytest.approx(gain, abs=1e-9)

@@ -62,6 +62,37 @@ def test_bad_areas_and_margins_are_refused():
         ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(odometry=np.zeros((2, 3))), 1.0, margin=0.0)
     with pytest.raises(ValueError, match="odometry"):
         ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(signatures=np.ones((2, 2))), 1.0, margin=1.0)
+    with pytest.raises(ValueError, match="area_rule"):
+        ptm.TieNormaliser.from_dead_reckoning(ptm.Dataset(odometry=np.ones((2, 3))), 1.0, 1.0, area_rule="hull")
+    with pytest.raises(ValueError, match="area_rule"):
+        ptm.DeadReckonedTieNormaliser(1.0, 1.0, area_rule="box")
+
+
+@pytest.mark.parametrize("route, margin, area", [
+    ([[0.0, 0.0], [10.0, 0.0]], 1.0, 2 * 10.0 + math.pi),                   # a capsule
+    ([[0.0, 0.0], [7.0, 7.0], [14.0, 0.0]], 0.5, 2 * 0.5 * 2 * math.hypot(7.0, 7.0) + math.pi * 0.25
+     - 0.25 * (1 - math.pi / 4)),                                          # two capsules, the knee's corner
+    ([[20.0 * math.cos(t), 20.0 * math.sin(t)] for t in np.linspace(0, 2 * math.pi, 721)], 1.5,
+     math.pi * (21.5 ** 2 - 18.5 ** 2)),                                   # a ring
+    ([[0.0, 0.0]], 2.0, 4.0 * math.pi),                                    # a point: a disc
+])
+def test_the_route_area_is_the_area_within_the_margin_of_the_route(route, margin, area):
+    assert ptm.tie_normaliser.route_area(route, margin) == pytest.approx(area, rel=0.04)
+
+
+def test_a_retraced_corridor_counts_once_and_a_box_counts_what_the_route_never_reaches():
+    """Back and forth along one corridor is its area once; an L-shaped route fills a fraction of its box."""
+    there_and_back = [[0.0, 0.0], [20.0, 0.0], [0.0, 0.0], [20.0, 0.0]]
+    assert ptm.tie_normaliser.route_area(there_and_back, 1.0) == pytest.approx(
+        ptm.tie_normaliser.route_area(there_and_back[:2], 1.0), rel=1e-9)
+    steps = [[20.0, 0.0, math.pi / 2], [20.0, 0.0, 0.0]]  # 20 m east, then 20 m north: an L
+    dataset = ptm.Dataset(odometry=steps)
+    route = ptm.TieNormaliser.from_dead_reckoning(dataset, 1.0, margin=1.0)
+    box = ptm.TieNormaliser.from_dead_reckoning(dataset, 1.0, margin=1.0, area_rule="bounding_box")
+    assert box.area == pytest.approx(22.0 * 22.0)
+    assert route.area == pytest.approx(2 * 2 * 20.0 + math.pi - (1 - math.pi / 4), rel=0.04)
+    bound = ptm.DeadReckonedTieNormaliser(1.0, margin=1.0).bind(dataset)
+    assert bound.area == route.area and bound.block_log_likelihood((0, 2)) < box.block_log_likelihood((0, 2))
 
 
 def _appearance_and_normaliser(normaliser):

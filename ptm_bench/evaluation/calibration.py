@@ -71,7 +71,7 @@ import ptm
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
 __all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
-           "prior_rate", "tie_area_margin", "topology_sigma"]
+           "prior_rate", "tie_area_margin", "tie_area_source", "topology_sigma"]
 
 CONFIG = "config"
 
@@ -249,6 +249,13 @@ def tie_area_margin(meta: dict) -> float:
         raise ValueError("odometry.tie_normaliser needs the detector's radius (dataset meta 'detection_radius') "
                          "for the margin of the landmarks' area")
     return float(meta["detection_radius"])
+
+
+def tie_area_source(area_rule: str, margin: float, detections: str) -> str:
+    """Where the area of the normalised ties came from (``odometry.tie_area``), for a row's provenance."""
+    shape = (f"within {margin:g} m (the detection radius) of their route" if area_rule == "route"
+             else f"bounding box + {margin:g} m (the detection radius) on every side")
+    return f"{detections}: {shape}, no labels"
 
 
 def _materialised(held_out) -> list[ptm.Dataset]:

@@ -50,6 +50,7 @@ from ptm_bench.evaluation.calibration import (
     penalty_radius,
     prior_rate,
     tie_area_margin,
+    tie_area_source,
     topology_sigma,
 )
 from ptm_bench.evaluation.datacache import dataset_for
@@ -134,10 +135,10 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
         ))
         if odometry["tie_normaliser"]:
             margin = tie_area_margin(dataset.meta)
-            normaliser = ptm.TieNormaliser.from_dead_reckoning(dataset, used["sigma_topology"], margin)
+            normaliser = ptm.TieNormaliser.from_dead_reckoning(dataset, used["sigma_topology"], margin,
+                                                                odometry["tie_area"])
             used["tie_area"] = normaliser.area
-            used["source_tie_area"] = (f"this run's dead-reckoned detections: bounding box + {margin:g} m (detection "
-                                       "radius) on every side, no labels")
+            used["source_tie_area"] = tie_area_source(odometry["tie_area"], margin, "this run's dead-reckoned detections")
             models.append(normaliser)
     if "appearance" in settings["models"]:
         appearance = settings["appearance"]

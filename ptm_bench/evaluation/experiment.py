@@ -122,6 +122,10 @@ DEFAULTS = {
         # every side). False is the paper's model, whose unnormalised ties make odometry lean to "every
         # detection its own place"; committed results run before pin it.
         "tie_normaliser": True,
+        # the landmarks' area for the normalised ties (ptm.TieNormaliser.from_dead_reckoning): "route" (the
+        # default), within the detection radius of the dead-reckoned route through the detections;
+        # "bounding_box", the box around them (the rule until 2026-12-04), which corridors fill a fifth of
+        "tie_area": "route",
         # "increments" (the default): importance samples of the odometry integral drawn in the relative poses
         # between consecutive detections and composed; "poses": drawn around P* in the poses (the paper), which
         # degenerates on long routes (docs/model.md §3.3, erratum E12). Committed results run before pin "poses".
@@ -292,10 +296,11 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
 _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coordinates"): "poses",
                ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
                ("inference", "estimate"): "frequency", ("inference", "warm_up"): "guided",
-               ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5}
+               ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5,
+               ("odometry", "tie_area"): "bounding_box"}
 #: Keys that act only when another key of their section is true: left out of a cell's definition when it is
 #: false, so that changing their default does not make the cells that switch them off stale.
-_DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers"}
+_DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers", ("odometry", "tie_area"): "tie_normaliser"}
 _UNSET = object()
 
 
@@ -520,6 +525,8 @@ _VALUE_CHECKS = {
         "max_penalty": (lambda v: _is_number(v) and v >= 0, "a non-negative number"),
         "n_importance": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
         "tie_normaliser": (lambda v: isinstance(v, bool), "true or false"),
+        # the rules of ptm.tie_normaliser.AREA_RULES (configs are parsed without importing the inference library)
+        "tie_area": (lambda v: v in ("route", "bounding_box"), '"route" or "bounding_box"'),
     },
     "appearance": {
         "components": (lambda v: _is_int(v) and v >= 1, "a positive integer"),

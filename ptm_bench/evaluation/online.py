@@ -56,9 +56,9 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
                                        penalty_proposal=settings["penalty_proposal"]))
         if settings["tie_normaliser"]:
             margin = calibration.tie_area_margin(dataset.meta)
-            built.append(ptm.DeadReckonedTieNormaliser(used["sigma_topology"], margin))
-            used["source_tie_area"] = (f"the dead-reckoned detections so far: bounding box + {margin:g} m (detection "
-                                       "radius) on every side, no labels")
+            built.append(ptm.DeadReckonedTieNormaliser(used["sigma_topology"], margin, settings["tie_area"]))
+            used["source_tie_area"] = calibration.tie_area_source(settings["tie_area"], margin,
+                                                                  "the dead-reckoned detections so far")
     share = calibration.places_per_detection(held_out)
     used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
                                  f"(held out) x n places")
