@@ -262,6 +262,7 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     ("odometry", "sampling_coordinates", "poses", "increments", "world", "sampling_coordinates"),  # a new default
     ("odometry", "penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
     ("inference", "warm_up", "guided", "all", "some", "inference.warm_up"),  # and this
+    ("odometry", "tie_area", "bounding_box", "route", "hull", "tie_area must be"),  # and this
 ])
 def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):
@@ -280,3 +281,13 @@ def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(t
     assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
     with pytest.raises(ValueError, match=refusal):
         cells({key: invalid})
+
+
+def test_the_tie_area_does_not_decide_a_cell_without_normalised_ties(tmp_path):
+    """odometry.tie_area acts only with tie_normaliser: configs that switch the normaliser off keep their rows."""
+    def definition(odometry):
+        config = {**CONFIG, "odometry": {**CONFIG["odometry"], **odometry}}
+        return experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(config)), tmp_path)[0]["definition"]
+
+    assert definition({"tie_normaliser": False, "tie_area": "route"}) == definition({"tie_normaliser": False})
+    assert definition({"tie_area": "route"}) != definition({"tie_area": "bounding_box"})
