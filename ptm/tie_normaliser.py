@@ -34,14 +34,14 @@ detector's radius of its route, and a building's corridors fill little of the
 box around them. The rule ``"route"`` (the default, :func:`route_area`) is the
 area within ``margin`` of the dead-reckoned route through the detections: 421
 m^2 on a simulated ``office`` run whose dead-reckoned detections span a box of
-2 164 m^2, 754 m^2 against 4 013 m^2 on ACES. Taking the box as A
-(``"bounding_box"``, the rule until 2026-12-04) makes a chance coincidence of
-two distinct places four or five times less likely than it is, and rewards
-every merge by log 5 = 1.6 nats too much: on ACES the online map so scored
-merged 41 places into 32, 62 nats of that reward above the truth's. Dead
-reckoning draws a corridor driven twice as two, so the route's area can be up
-to that much larger than the building's (Intel: 625 m^2 against 320 m^2 along
-its reference), which errs towards the box.
+2 164 m^2, 644 m^2 against 2 259 m^2 on ACES (the shipped dataset). Taking the
+box as A (``"bounding_box"``, the rule until 2026-12-04) makes a chance
+coincidence of two distinct places four or five times less likely than it is,
+and rewards every merge by log 4-5 = 1.5 nats too much: on ACES the online
+map so scored merged 41 places into 32, with 62 nats more of that reward than
+the truth's. Dead reckoning draws a corridor driven twice as two, so the
+route's area can be up to that much larger than the building's (Intel: 653
+m^2 against 339 m^2 along its reference), which errs towards the box.
 
 The normaliser rewards a merge by about (n - 1) log(A / (2 pi sigma_T^2)),
 7-8 nats a pair on a 40 m grid at sigma_T = 0.53 m, that only the odometry
