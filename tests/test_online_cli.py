@@ -9,7 +9,7 @@ import pytest
 
 import ptm
 from ptm_bench.cli import main
-from ptm_bench.evaluation.online import calibrated_mapper, replay
+from ptm_bench.evaluation.online import calibrated_mapper, collapse_warning, replay
 from test_provenance import loop_dataset
 
 
@@ -34,6 +34,7 @@ def test_the_replay_finds_the_loop_and_reports_latency_and_the_truths_mass(runs,
     assert result.n == 9 and result.diagnostics["particles"] == 64
     assert f"ground truth's mass {result.probability(loop_dataset(0).labels):.3f}" in text
     assert "final MAP: ARI 1.000" in text
+    assert "particles collapsed" not in text  # a healthy run does not warn
 
 
 def test_the_replay_is_the_mappers_own_result_for_one_seed(runs):
@@ -76,3 +77,15 @@ def test_bad_input_is_refused_with_the_reason(runs, tmp_path, capsys, extra, mes
              "result.txt": str(tmp_path / "result.txt")}
     assert main(["online", str(dataset), *[names.get(item, item) for item in extra]]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_replay_whose_particles_collapsed_is_flagged():
+    """One detection where the weights left 2 effective particles of 128 (FHW's run) is enough to warn; an
+    ESS that stays above 5 % of the particles is not."""
+    def online_ptm(ess):
+        return ptm.PTM(np.array([[0, 1, 0], [0, 1, 2]]), np.array([0.985, 0.015]), "smc",
+                       {"particles": 128, "ess": ess})
+
+    warning = collapse_warning(online_ptm([128.0, 60.0, 2.0, 90.0]))
+    assert "fell to 2.0 of 128 at detection 3" in warning and "--particles" in warning
+    assert collapse_warning(online_ptm([128.0, 35.4, 7.0, 120.6])) is None

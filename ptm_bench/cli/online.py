@@ -19,7 +19,7 @@ import numpy as np
 import ptm
 from ptm_bench.cli.options import positive_int
 from ptm_bench.evaluation.experiment import MODEL_NAMES
-from ptm_bench.evaluation.online import calibrated_mapper, replay
+from ptm_bench.evaluation.online import calibrated_mapper, collapse_warning, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 
 
@@ -70,6 +70,9 @@ def _run_online(args) -> int:
     latency = np.array(result.diagnostics["latency_s"])
     print(f"latency per update: median {np.median(latency):.2f} s, 90th percentile {np.quantile(latency, 0.9):.2f} s, "
           f"largest {latency.max():.2f} s; {result.diagnostics['resamplings']} resamplings")
+    warning = collapse_warning(result)
+    if warning is not None:
+        print(f"warning: {warning}")
     for rank, (labels, probability) in enumerate(result.top(3), start=1):
         print(f"  top {rank}: P = {probability:.3f}, {len(set(labels))} places")
     if dataset.labels is not None:
