@@ -43,6 +43,14 @@ def non_negative(name: str, value) -> float:
     return number
 
 
+def share(name: str, value) -> float:
+    """Return ``value`` as a float, or raise ``ValueError`` unless it is a probability in [0, 1]."""
+    number = non_negative(name, value)
+    if number > 1.0:
+        raise ValueError(f"{name} must be a probability in [0, 1], got {value!r}")
+    return number
+
+
 def positive_array(name: str, value, length: int | None = None) -> np.ndarray:
     """A scalar or 1-D array of finite positive floats (broadcast later by the caller)."""
     array = np.asarray(value, dtype=float)

@@ -38,7 +38,7 @@ __all__ = ["tempered_mcmc"]
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
                   delayed_acceptance=False, chains: int = 1, warm_up: int = 0, max_doublings: int = 0,
-                  estimate: str = "frequency"):
+                  estimate: str = "frequency", unscreened_share: float = 0.0):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
@@ -50,8 +50,9 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     (steps on approximations of the posterior from each replica's start) are
     those of :func:`ptm.mcmc`, so ``**ptm.sampler.guided_options(posterior)``
     applies to every replica. ``max_doublings`` runs ladders whose beta = 1
-    chains disagree on, twice as long each time, and ``estimate`` turns the beta = 1 chains into
-    probabilities, as in :func:`ptm.mcmc`.
+    chains disagree on, twice as long each time, ``estimate`` turns the beta = 1 chains into
+    probabilities, and ``unscreened_share`` skips the screening in that share of each replica's steps, as in
+    :func:`ptm.mcmc`.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -67,7 +68,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
 
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     ladder_seeds = [root] if chains == 1 else root.spawn(chains)
-    mixtures = [MoveMixture(moves if moves is not None else default_moves()) for _ in betas]
+    mixtures = [MoveMixture(moves if moves is not None else default_moves(), unscreened_share) for _ in betas]
     swaps = _SwapCounts(betas.size - 1)
 
     started = time.perf_counter()

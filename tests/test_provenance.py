@@ -263,6 +263,7 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     ("odometry", "penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
     ("inference", "warm_up", "guided", "all", "some", "inference.warm_up"),  # and this
     ("odometry", "tie_area", "bounding_box", "route", "hull", "tie_area must be"),  # and this
+    ("inference", "unscreened_share", 0.0, 0.05, 1.5, "unscreened_share must be"),  # and this
 ])
 def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):

@@ -219,11 +219,12 @@ def resolved_burn_in(inference: dict) -> int:
 def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
     """The sampler's moves, delayed acceptance and warm-up for a resolved move set (:func:`resolved_moves`):
     ``"guided"`` always warms up (docs/model.md §3.4), the others with ``inference.warm_up = "all"``."""
+    unscreened = {"unscreened_share": inference["unscreened_share"]}
     if moves == "guided":
-        return ptm.sampler.guided_options(posterior, inference["delayed_acceptance"])
+        return {**ptm.sampler.guided_options(posterior, inference["delayed_acceptance"]), **unscreened}
     chosen = [(ptm.moves.SplitMerge(), 1.0)] if moves == "paper" else None
     warm_up = ptm.sampler.WARM_UP_PER_DETECTION * posterior.n if inference["warm_up"] == "all" else 0
-    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up}
+    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up, **unscreened}
 
 
 def disagreement(diagnostics: dict) -> str:

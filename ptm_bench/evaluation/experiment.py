@@ -91,6 +91,10 @@ DEFAULTS = {
         "estimate": "auto",
         "prior_rate": None,  # None: places per detection on the calibration runs x the run's detections
         "delayed_acceptance": True,
+        # the share of steps of "mcmc" and "tempered" that skip delayed acceptance's screening and accept on the
+        # exact ratio (ptm.sampler.MoveMixture): a wrong map misleads the guided moves' surrogate, which then
+        # screens out the moves that would repair it (10 x 10 grids: chains agreeing in 2 of 2 runs instead of 0)
+        "unscreened_share": 0.05,
         "exact_max_n": 10,
         # "default" (split/merge + Gibbs), "paper" (split/merge only), "guided" (for many detections: data-driven
         # moves, the odometry surrogate in delayed acceptance's first stage, a cheap warm-up per chain of "mcmc";
@@ -297,7 +301,7 @@ _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coo
                ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
                ("inference", "estimate"): "frequency", ("inference", "warm_up"): "guided",
                ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5,
-               ("odometry", "tie_area"): "bounding_box"}
+               ("odometry", "tie_area"): "bounding_box", ("inference", "unscreened_share"): 0.0}
 #: Keys that act only when another key of their section is true: left out of a cell's definition when it is
 #: false, so that changing their default does not make the cells that switch them off stale.
 _DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers", ("odometry", "tie_area"): "tie_normaliser"}
@@ -515,6 +519,7 @@ _VALUE_CHECKS = {
         "max_doublings": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
         "prior_rate": (lambda v: _is_number(v) and v > 0, "a positive number"),
         "delayed_acceptance": (lambda v: isinstance(v, bool), "true or false"),
+        "unscreened_share": (lambda v: _is_number(v) and 0 <= v <= 1, "a number in [0, 1]"),
         "exact_max_n": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
         "temperatures": (_is_temperature_ladder, "a list of inverse temperatures from 1.0 strictly down to a positive value"),
     },
