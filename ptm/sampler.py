@@ -301,9 +301,9 @@ def screening_diagnostics(posterior, delayed_acceptance) -> dict:
 class MoveMixture:
     """Draws one move per step from a weighted list and tallies what each move did.
 
-    With ``unscreened_share`` > 0, each step skips delayed acceptance's screening with that probability and
-    accepts on the exact ratio: a mixture, chosen independently of the state, of two kernels that each keep
-    the posterior, so it keeps it too. A surrogate that mispredicts where the chain sits (a map that a wrong
+    With ``unscreened_share`` > 0 and global terms to screen, each step skips delayed acceptance's screening
+    with that probability and accepts on the exact ratio: a mixture, chosen independently of the state, of
+    two kernels that each keep the posterior, so it keeps it too. A surrogate that mispredicts where the chain sits (a map that a wrong
     merge distorts) makes the screened kernel reject the very move that repairs it; the unscreened steps let
     such a move through at its exact odds (docs/model.md §3.4).
     """
@@ -320,7 +320,8 @@ class MoveMixture:
 
     def step(self, posterior, state, rng, inverse_temperature=1.0, delayed_acceptance=False):
         which = 0 if len(self.moves) == 1 else int(np.searchsorted(self._cumulative, rng.random(), side="right"))
-        if delayed_acceptance is not False and self.unscreened_share and rng.random() < self.unscreened_share:
+        if (delayed_acceptance is not False and posterior.has_global_terms and self.unscreened_share
+                and rng.random() < self.unscreened_share):
             delayed_acceptance = False
             self.unscreened += 1
         state, info = metropolis_step(posterior, state, rng, self.moves[which], inverse_temperature,

@@ -219,6 +219,12 @@ def test_no_unscreened_share_leaves_the_chain_as_it_was():
     assert runs[1].diagnostics["unscreened_steps"] == 0
 
 
+def test_without_global_terms_no_step_counts_as_unscreened(appearance_target):
+    posterior, _ = appearance_target
+    result = ptm.mcmc(posterior, 300, seed=3, delayed_acceptance=True, unscreened_share=0.5)
+    assert result.diagnostics["unscreened_steps"] == 0
+
+
 @pytest.mark.parametrize("share", [-0.1, 1.5, math.nan])
 def test_an_unscreened_share_outside_the_unit_interval_is_refused(share):
     posterior, _ = mixed_target(6)
