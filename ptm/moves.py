@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._cache import BoundedCache
 from ._validation import count
 from .partitions import Block, Partition, log_stirling2_two
 
@@ -422,6 +423,10 @@ class GuidedSplitMerge:
                 + self.exploration * candidates / np.count_nonzero(candidates))
 
 
+#: Steps of the block reallocation whose options a :class:`WindowReallocation` remembers (a few kB each).
+OPTIONS_KEPT = 10_000
+
+
 class WindowReallocation:
     """Allocate a window of ``window`` consecutive detections again, jointly (block sampling).
 
@@ -448,6 +453,7 @@ class WindowReallocation:
 
     def __init__(self, window: int = 8):
         self.window = count("window", window, minimum=1)
+        self._options = BoundedCache(OPTIONS_KEPT)
 
     def propose(self, rng, state: ChainState, posterior) -> Proposal | None:
         n = posterior.n
@@ -458,8 +464,8 @@ class WindowReallocation:
         kept = [tuple(member for member in block if member not in window) for block in state.blocks]
         left_behind = tuple(block for block in kept if block)
         old_home = {detection: labels[detection] for detection in window}
-        forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window)
-        _, log_q_reverse = _allocate_in_order(rng, posterior, left_behind, window,
+        forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window, self._options)
+        _, log_q_reverse = _allocate_in_order(rng, posterior, left_behind, window, self._options,
                                               old=(state.blocks, old_home))
         before = set(state.blocks)
         added = tuple(sorted(block for block in forward if block not in before))
@@ -486,38 +492,53 @@ class TrailingReallocation(WindowReallocation):
         return range(max(0, n - self.window), n)
 
 
-def _allocate_in_order(rng, posterior, left_behind, detections, old=None):
+def _allocate_in_order(rng, posterior, left_behind, detections, options: BoundedCache, old=None):
     """The sets after ``detections`` join ``left_behind`` one by one (:class:`WindowReallocation`), and the
     log probability of that allocation; with ``old`` = (the blocks of T, each detection's block index in T),
-    replay T's allocation instead of drawing one."""
-    score, log_prior = posterior.block_score, posterior.log_prior_by_size
+    replay T's allocation instead of drawing one. ``options`` memoises each step's options by posterior, sets
+    so far and detection: copies of one particle, and a chain that proposes from the same state again, meet
+    the same steps."""
+    score = posterior.block_score
     sets = list(left_behind)
     set_scores = [score(block) for block in sets]  # kept in step with sets: each set is scored once per change
     home_of = {member: position for position, block in enumerate(sets) for member in block}
     log_q = 0.0
     for detection in detections:
-        grown = [score(_with_member(block, detection)) for block in sets]
-        weights = [with_detection - without for with_detection, without in zip(grown, set_scores)]
-        opening = log_prior[len(sets) + 1] - log_prior[len(sets)] if sets else 0.0  # the first set: no choice
-        alone = score((detection,))
-        weights.append(alone + opening)
-        log_weights = np.asarray(weights)
-        log_norm = float(np.logaddexp.reduce(log_weights))
+        key = (posterior, detection, tuple(sets))
+        step = options.get(key)
+        if step is None:
+            step = _allocation_options(posterior, sets, set_scores, detection)
+            options.put(key, step)
+        grown, log_weights, log_norm = step
         if old is None:
             pick = _draw(rng, log_weights)
         else:
             blocks, home = old
             placed = [member for member in blocks[home[detection]] if member in home_of]
             pick = home_of[placed[0]] if placed else len(sets)
-        log_q += weights[pick] - log_norm
+        log_q += float(log_weights[pick]) - log_norm
         if pick == len(sets):
             sets.append((detection,))
-            set_scores.append(alone)
+            set_scores.append(grown[pick])
         else:
             sets[pick] = _with_member(sets[pick], detection)
             set_scores[pick] = grown[pick]
         home_of[detection] = pick
     return tuple(sorted(sets)), log_q
+
+
+def _allocation_options(posterior, sets, set_scores, detection):
+    """One step of :func:`_allocate_in_order`: the scores of each set with ``detection`` and of it alone
+    (last), the options' log weights and their log normaliser."""
+    score, log_prior = posterior.block_score, posterior.log_prior_by_size
+    grown = [score(_with_member(block, detection)) for block in sets]
+    weights = [with_detection - without for with_detection, without in zip(grown, set_scores)]
+    opening = log_prior[len(sets) + 1] - log_prior[len(sets)] if sets else 0.0  # the first set: no choice
+    alone = score((detection,))
+    grown.append(alone)
+    weights.append(alone + opening)
+    log_weights = np.asarray(weights)
+    return grown, log_weights, float(np.logaddexp.reduce(log_weights))
 
 
 def _split_or_merge(rng, state: ChainState, score, first: int, second: int) -> Proposal:

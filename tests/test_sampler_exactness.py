@@ -155,6 +155,21 @@ def test_the_block_move_allocates_the_window_again_and_leaves_the_rest():
         assert left_behind(after.blocks) == left_behind(state.blocks)  # detections 0-4 keep their companions
 
 
+def test_the_block_moves_memo_changes_no_proposal():
+    """A move that remembers its allocation steps proposes what a fresh one proposes from the same random
+    numbers, on one posterior and after another posterior over the same detections."""
+    posterior = appearance_posterior()
+    other = ptm.Posterior(posterior.dataset, ptm.PoissonPrior(0.5), posterior.terms)
+    state = initial_state(posterior, posterior.dataset.labels)
+    remembering = WindowReallocation(window=3)
+    for seed in range(60):
+        target = other if seed % 3 == 0 else posterior
+        fresh = WindowReallocation(window=3).propose(np.random.default_rng(seed), state, target)
+        remembered = remembering.propose(np.random.default_rng(seed), state, target)
+        assert remembered == fresh
+    assert remembering._options.hits > 0
+
+
 def test_the_window_move_allocates_consecutive_detections_again_from_every_start():
     posterior = appearance_posterior()
     state = initial_state(posterior, posterior.dataset.labels)
