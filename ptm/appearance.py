@@ -41,6 +41,7 @@ from scipy.optimize import minimize
 from scipy import stats
 from scipy.special import digamma, gammaln
 
+from ._cache import BoundedCache
 from ._validation import count, finite_array, positive, positive_array
 from .appearance_outliers import SHARE_BOUNDS, fit_outlier_model, outlier_log_evidence, outlier_predictive
 from .partitions import Partition
@@ -173,14 +174,23 @@ class AppearanceModel:
                 f"alpha={show(self.alpha)}, beta={show(self.beta)}, evidence={self.evidence!r}{outliers})")
 
 
+#: Sets whose evidence an :class:`AppearanceTerm` remembers, with the terms it grows into (:meth:`AppearanceTerm.grown`).
+SET_MEMO_SIZE = 200_000
+
+
 class AppearanceTerm:
-    """The appearance likelihood bound to one dataset's signatures; decomposes over sets."""
+    """The appearance likelihood bound to one dataset's signatures; decomposes over sets.
+
+    A set's evidence depends on its members' signatures alone, so it is memoised per set, and
+    :meth:`grown` binds the model to a run with more detections while keeping what is known.
+    """
 
     name = "appearance"
 
-    def __init__(self, model: AppearanceModel, signatures: np.ndarray):
+    def __init__(self, model: AppearanceModel, signatures: np.ndarray, memo: BoundedCache | None = None):
         self.model = model
         self.signatures = signatures
+        self._memo = BoundedCache(SET_MEMO_SIZE) if memo is None else memo
         width = signatures.shape[1]
         self._centred = signatures - model.mu
         self._centred_squared = self._centred ** 2
@@ -204,8 +214,27 @@ class AppearanceTerm:
             self._constant_by_size[n] = value
         return value
 
+    def grown(self, dataset) -> "AppearanceTerm":
+        """The model bound to ``dataset``, a run whose first detections are this term's (the online mapper's
+        next detection), sharing this term's memo of set evidences: those sets' members and signatures are
+        the same. ``ValueError`` where ``dataset``'s signatures do not begin with this term's."""
+        signatures = dataset.signatures
+        n = len(self.signatures)
+        if signatures is None or len(signatures) < n or not np.array_equal(signatures[:n], self.signatures):
+            raise ValueError("the dataset does not extend this term's run: its first signatures differ or are "
+                             "missing; bind the model to it instead (model.bind(dataset))")
+        return AppearanceTerm(self.model, signatures, self._memo)
+
     def block_log_likelihood(self, block) -> float:
-        """sum_k log p(S, k) for the set of detections ``block``."""
+        """sum_k log p(S, k) for the set of detections ``block`` (a sorted tuple), memoised."""
+        key = tuple(block)
+        value = self._memo.get(key)
+        if value is None:
+            value = self._evidence(key)
+            self._memo.put(key, value)
+        return value
+
+    def _evidence(self, block) -> float:
         members = list(block)
         n = len(members)
         model = self.model

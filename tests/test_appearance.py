@@ -7,6 +7,7 @@ import pytest
 from scipy import integrate, stats
 from scipy.optimize import OptimizeResult
 
+from helpers import appearance_posterior
 from ptm import AppearanceModel, Dataset, Partition, inverse_gamma_from_mean_variance
 
 
@@ -156,3 +157,29 @@ def test_a_fit_that_fails_twice_is_refused_by_component(monkeypatch):
     failing_optimiser(monkeypatch, calls_failing=2)
     with pytest.raises(RuntimeError, match=r"did not converge for signature component 0 \(ABNORMAL.*; ABNORMAL"):
         AppearanceModel.fit(calibration_runs())
+
+
+def test_a_grown_term_scores_as_a_fresh_one_and_keeps_what_it_memoised():
+    """The online mapper's next detection: the term grown into the longer run gives every set the value a
+    fresh binding gives, and the sets of the shorter run are answered from its memo."""
+    longer = appearance_posterior(8).dataset
+    shorter = Dataset(signatures=longer.signatures[:6])
+    model = AppearanceModel(mu=0.3, kappa=0.05, alpha=3.0, beta=2e-4)
+    term = model.bind(shorter)
+    seen = [(0, 3), (1, 4), (2, 5), (0, 1, 2)]
+    for block in seen:
+        term.block_log_likelihood(block)
+    grown, fresh = term.grown(longer), model.bind(longer)
+    for block in seen + [(0, 3, 6), (1, 4, 7), (7,)]:
+        assert grown.block_log_likelihood(block) == fresh.block_log_likelihood(block)
+    assert grown._memo is term._memo and term._memo.hits == len(seen)
+
+
+def test_growing_into_another_run_is_refused():
+    longer = appearance_posterior(8).dataset
+    term = AppearanceModel(mu=0.3, kappa=0.05, alpha=3.0, beta=2e-4).bind(longer)
+    other = Dataset(signatures=longer.signatures[::-1].copy())
+    with pytest.raises(ValueError, match="does not extend this term's run"):
+        term.grown(other)
+    with pytest.raises(ValueError, match="does not extend this term's run"):
+        term.grown(Dataset(signatures=longer.signatures[:4]))

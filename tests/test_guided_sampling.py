@@ -91,6 +91,23 @@ def test_surrogate_predicts_the_laplace_change_of_a_nearly_linear_graph(before, 
     assert predicted == pytest.approx(term.evaluate(after).laplace - term.evaluate(before).laplace, abs=1e-3)
 
 
+def test_join_estimates_bound_the_predicted_laplace_change_and_equal_it_for_one_member():
+    """Without the penalty a join estimate is the prediction's Laplace part for a set of one and at least it for
+    a larger set (a clique tie adds one pair tie per member); far sets get far lower estimates."""
+    posterior = nearly_linear_posterior()
+    alone = posterior.partition((0, 1, 2, 3, 0, 1, 2, 3, 8))
+    surrogate = OdometrySurrogate(posterior)
+    estimates = surrogate.join_estimates(alone, 8)
+    predictions = [surrogate.predicted_change(alone, [block, (8,)], [block + (8,)]) for block in alone.blocks[:-1]]
+    assert [len(block) for block in alone.blocks[:-1]] == [2, 2, 2, 2]
+    assert np.all(estimates >= np.array(predictions) - 1e-9)
+    assert np.argmax(estimates) == np.argmax(predictions) == 0  # detection 8 is back at 0 and 4
+    single = posterior.partition((0, 1, 2, 3, 4, 5, 6, 7, 8))
+    singles = surrogate.join_estimates(single, 8)
+    exact = [surrogate.predicted_change(single, [block, (8,)], [block + (8,)]) for block in single.blocks[:-1]]
+    np.testing.assert_allclose(singles, exact, rtol=1e-9, atol=1e-9)
+
+
 def test_surrogate_is_a_function_of_the_partition_and_the_move():
     posterior, _ = mixed_target(6)
     current = posterior.partition([0, 1, 2, 3, 0, 1])
