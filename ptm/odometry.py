@@ -105,7 +105,7 @@ from scipy.special import logsumexp
 from ._cache import BoundedCache
 from ._validation import non_negative, positive
 from .partitions import Partition
-from .se2 import relative_pose, wrap_angle
+from .se2 import compose, relative_pose, wrap_angle
 from .pose_graph import (SPARSE_ABOVE_DIMENSION, DenseFactor, LaplaceFit, PoseGraph, SparseFactor,
                          odometry_sqrt_information, poses_from_vector)
 
@@ -284,6 +284,9 @@ class OdometryTerm:
         self._dead_reckoning = self.graph.dead_reckoning()
         self._cache = BoundedCache(model.cache_size)
         self._modes = BoundedCache(max(1, MODE_MEMO_BYTES // (8 * max(self.dimension, 1))))
+        self._converged_modes = BoundedCache(self._modes.maxsize)  # the same vectors, of converged fits only
+        self._shorter_modes: BoundedCache | None = None  # the converged modes of the run one detection shorter
+        self._extended_fits = 0
         self._evaluations = 0
         self._failures = 0
         self._failed_fits = 0  # failures without a usable fit: log-likelihood -inf
@@ -347,6 +350,36 @@ class OdometryTerm:
         term._fits = self._fits
         return term
 
+    def grown(self, dataset) -> "OdometryTerm":
+        """This term's model bound to ``dataset``, the run one detection longer (the online mapper's next
+        detection), keeping this term's converged Laplace modes as starts (:meth:`fit`). ``ValueError``
+        where ``dataset`` does not extend this term's run by one detection with the same odometry rows
+        and covariances."""
+        rows = self.n - 1
+        before, after = self.dataset.odometry_cov, dataset.odometry_cov
+        extends = (dataset.odometry is not None and dataset.n == self.n + 1
+                   and np.array_equal(dataset.odometry[:rows], self.dataset.odometry)
+                   and (rows == 0 or (before is None) == (after is None))
+                   and (before is None or np.array_equal(after[:rows], before)))
+        if not extends:
+            raise ValueError("the dataset does not extend this term's run by one detection with the same "
+                             "odometry rows and covariances; bind the model to it instead (model.bind(dataset))")
+        term = OdometryTerm(self.model, dataset)
+        term._shorter_modes = self._converged_modes
+        return term
+
+    def _extended_start(self, labels: np.ndarray) -> np.ndarray | None:
+        """The shorter run's converged mode of ``labels[:-1]`` with the last pose composed onto it by the last
+        odometry row, where this term was grown, the last detection is a place of its own and the mode is
+        remembered; else None."""
+        if self._shorter_modes is None or labels[-1] in labels[:-1]:
+            return None
+        mode = self._shorter_modes.get(_canonical_labels(labels[:-1]))
+        if mode is None:
+            return None
+        last_pose = mode[-3:] if len(mode) else np.zeros(3)
+        return np.concatenate([mode, compose(last_pose, self.dataset.odometry[-1])])
+
     def _evaluate_canonical(self, labels: np.ndarray) -> OdometryEvaluation:
         if len(labels) != self.n:
             raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
@@ -358,7 +391,7 @@ class OdometryTerm:
             evaluation = OdometryEvaluation(-math.inf, -math.inf, math.inf, 0.0, fit.iterations,
                                             fit.factorisations, False, fit.x)
         else:
-            self._modes.put(tuple(labels.tolist()), fit.x)
+            self._remember_mode(tuple(labels.tolist()), fit)
             evaluation = self._importance_sample(fit, labels)
         if math.isnan(evaluation.log_likelihood) or evaluation.log_likelihood == math.inf:
             raise ValueError(
@@ -404,6 +437,7 @@ class OdometryTerm:
             "lm_iterations_mean": self._iterations_total / evaluations if evaluations else math.nan,
             "lm_iterations_max": self._iterations_max,
             "factorisations_mean": self._factorisations_total / evaluations if evaluations else math.nan,
+            "fits_from_shorter_run": self._extended_fits,
             "failures": self._failures,
             "failures_minus_inf": self._failed_fits,
             "failed_partitions": list(self._failed_partitions),
@@ -421,8 +455,24 @@ class OdometryTerm:
 
     def fit(self, labels) -> LaplaceFit:
         """The Laplace fit that defines log P(O | T): of the minima reached from :meth:`starts`, the
-        converged one of lowest energy (the first on a tie); a function of the partition alone."""
+        converged one of lowest energy (the first on a tie); a function of the partition alone.
+
+        A term grown from a run one detection shorter (:meth:`grown`) reaches it for a partition whose
+        last detection is a place of its own from the shorter run's converged mode of the other detections,
+        when it has one: with that detection a leaf of the pose graph, held by its odometry row alone, the
+        minima of E are those of the shorter run with the leaf composed onto them (zero residual), both
+        :meth:`starts` are the shorter run's with the leaf composed on, and the Newton steps from the
+        extended mode only polish it (a few factorisations instead of tens). The value agrees with the
+        fit from the starts to the solver's tolerance (``tests/test_online.py``).
+        """
+        labels = np.asarray(labels)
         topology = self.graph.topology(labels)
+        start = self._extended_start(labels)
+        if start is not None:
+            polished = self.graph.fit(start, topology)
+            if polished.converged:
+                self._extended_fits += 1
+                return polished
         fits = [self.graph.fit(start, topology) for start in self.starts(topology)]
         usable = [fit for fit in fits if fit.factor is not None] or fits[:1]
         best = min(usable, key=lambda fit: (not fit.converged, fit.energy))
@@ -481,8 +531,13 @@ class OdometryTerm:
             if fit.factor is None:
                 return None
             mode = fit.x
-            self._modes.put(labels, mode)
+            self._remember_mode(labels, fit)
         return mode
+
+    def _remember_mode(self, labels: tuple, fit: LaplaceFit) -> None:
+        self._modes.put(labels, fit.x)
+        if fit.converged:
+            self._converged_modes.put(labels, fit.x)
 
     def _importance_sample(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         log_proposal_norm = 0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
