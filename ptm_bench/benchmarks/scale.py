@@ -14,7 +14,8 @@ when 40 000 did not agree), ``agreement_wall_s`` (the sampler's wall time, every
 in that run).
 
 *Online mapper.* One run of a generated corridor grid (10 x 10 nodes, 4 extra loops, 60 % of the nodes places, world and
-run seed 0: 116 detections) at aliasing 0 and odometry noise 1, replayed detection by detection
+run seed 0: 116 detections), and one of a 14 x 14 grid (208 detections of 113 places: how far past 200 the
+latency holds), at aliasing 0 and odometry noise 1, each replayed detection by detection
 through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The parameters are
 calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out run of a
 5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an
@@ -23,15 +24,18 @@ places, the tie from the detector's radius, and the prior rate, given to the map
 from the held-out places per detection. ``--scale`` scales every grid's side by sqrt(scale) (n is in the
 rows).
 
-Its rows (``section, metric, n, value, unit``), n = the run's detections:
+Its rows (``section, metric, n, value, unit``), for each run, n = the run's detections:
 
 * ``online_latency_median_s``, ``online_latency_p90_s``, ``online_latency_max_s`` -- wall seconds of one
   ``OnlineMapper.add``, over the run's detections;
 * ``online_latency_last_quarter_median_s`` -- the same over the last quarter of the run (the largest n);
-* ``online_map_ari`` -- adjusted Rand index of the final MAP against the truth; ``online_resamplings``.
+* ``online_map_ari`` -- adjusted Rand index of the final MAP against the truth; ``online_resamplings``;
+
+and ``online_window_median_s`` with n = 20, 40, ...: the median over updates n - 19 ... n of that run, the
+latency as the run grows (unit ``s (run of N)`` names the run: both runs have windows at n = 20 ... 100).
 
     $ ptm-bench speed --section scale
-    $ ptm-bench speed --section scale --scale 0.1   # 3 x 3 grids: quick, for checking the section runs
+    $ ptm-bench speed --section scale --scale 0.1   # 3 x 3 and 4 x 4 grids: quick, for checking the section runs
 """
 
 from __future__ import annotations
@@ -54,6 +58,8 @@ from ptm_bench.world.floorplan import corridor_grid
 __all__ = ["scale_rows"]
 
 GRID_SIDE = 10
+BEYOND_200_SIDE = 14  # the second online run's grid: 208 detections
+LATENCY_WINDOW = 20  # updates per online_window_median_s row
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
 AGREEMENT_SIDES = (5, 8)
@@ -73,8 +79,13 @@ def _dataset_and_mapper(side: int = GRID_SIDE, seed: int = 0) -> tuple[ptm.Datas
 
 
 def scale_rows(args) -> list[dict]:
-    sides = sorted({max(3, round(side * math.sqrt(args.scale))) for side in AGREEMENT_SIDES})
-    return [row for side in sides for row in _agreement_rows(side)] + _online_rows(args)
+    return ([row for side in _scaled(AGREEMENT_SIDES, args.scale) for row in _agreement_rows(side)]
+            + [row for side in _scaled((GRID_SIDE, BEYOND_200_SIDE), args.scale) for row in _online_rows(side)])
+
+
+def _scaled(sides, scale: float) -> list[int]:
+    """The grid sides for ``--scale``: each times sqrt(scale) (at least 3), without repeats."""
+    return sorted({max(3, round(side * math.sqrt(scale))) for side in sides})
 
 
 def _agreement_rows(side: int) -> list[dict]:
@@ -103,8 +114,7 @@ def _agreement_rows(side: int) -> list[dict]:
             for metric, value, unit in values]
 
 
-def _online_rows(args) -> list[dict]:
-    side = max(3, round(GRID_SIDE * math.sqrt(args.scale)))
+def _online_rows(side: int) -> list[dict]:
     dataset, mapper = _dataset_and_mapper(side)
     result = replay(dataset, mapper)
     latency = np.array(result.diagnostics["latency_s"])
@@ -117,5 +127,8 @@ def _online_rows(args) -> list[dict]:
         ("online_map_ari", adjusted_rand_index(result.map(), dataset.labels), "ARI"),
         ("online_resamplings", float(result.diagnostics["resamplings"]), f"of {n - 1} detections"),
     ]
+    windows = [{"section": "scale", "metric": "online_window_median_s", "n": end,
+                "value": float(np.median(latency[end - LATENCY_WINDOW:end])), "unit": f"s (run of {n})"}
+               for end in range(LATENCY_WINDOW, n + 1, LATENCY_WINDOW)]
     return [{"section": "scale", "metric": metric, "n": n, "value": value, "unit": unit}
-            for metric, value, unit in values]
+            for metric, value, unit in values] + windows
