@@ -430,13 +430,8 @@ OPTIONS_KEPT = 10_000
 class WindowReallocation:
     """Allocate a window of ``window`` consecutive detections again, jointly (block sampling).
 
-    The window W = [s, s + window) clipped to the run has its start s drawn
-    uniformly from the N + window - 1 ones that overlap it (s = 1 - window ...
-    N - 1), whatever the partition, so every detection is in ``window`` of
-    them, the first and last included (with the starts inside the run only,
-    the last detection was in one window of N - window + 1: a loop closed at
-    the end of a 57-detection run stayed open in one chain of four over
-    320 000 samples, its two detections rejoining only together). The sets the
+    The window W = [s, s + window) has its start s drawn uniformly from the
+    N - window + 1 possible ones, whatever the partition, so the sets the
     other detections form, T0 (T without W), are the same before and after the
     move, and each start is a move in detailed balance on its own. The members
     of W join, in index order, one of the sets so far (those of T0 and the
@@ -483,8 +478,8 @@ class WindowReallocation:
     def _window(self, rng, n: int) -> range:
         """The detections allocated again: ``window`` consecutive ones from a uniform start."""
         size = min(self.window, n)
-        start = _uniform_index(rng, n + size - 1) - (size - 1)
-        return range(max(0, start), min(n, start + size))
+        start = _uniform_index(rng, n - size + 1)
+        return range(start, start + size)
 
 
 class TrailingReallocation(WindowReallocation):
