@@ -264,6 +264,7 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     ("inference", "warm_up", "guided", "all", "some", "inference.warm_up"),  # and this
     ("odometry", "tie_area", "bounding_box", "route", "hull", "tie_area must be"),  # and this
     ("inference", "unscreened_share", 0.0, 0.05, 1.5, "unscreened_share must be"),  # and this
+    ("inference", "sampler_stream", 0, 1, -1, "sampler_stream must be"),  # the default is the old stream
 ])
 def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):
@@ -282,6 +283,32 @@ def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(t
     assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
     with pytest.raises(ValueError, match=refusal):
         cells({key: invalid})
+
+
+def test_another_sampler_stream_runs_other_chains_on_the_same_posterior(tmp_path, monkeypatch):
+    """inference.sampler_stream branches the sampler's seed alone: the chains get another seed, the posterior (its
+    importance-sampling noise included) and everything calibrated stay, and stream 0 is the committed stream."""
+    sampler_seeds = []
+    mcmc = ptm.mcmc
+    monkeypatch.setattr(ptm, "mcmc", lambda *args, seed, **options: sampler_seeds.append(seed) or mcmc(
+        *args, seed=seed, **options))
+
+    def stream_posterior(stream):
+        config = copy.deepcopy(CONFIG)
+        config["inference"] = {**config["inference"], "sampler_stream": stream, "max_doublings": 0}
+        cell = cells_with_cached_datasets(tmp_path / f"stream{stream}", config)[0]
+        run_cell(cell)
+        return build_posterior(cell, datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"]))
+
+    (posterior, used), (other_posterior, other_used) = stream_posterior(0), stream_posterior(1)
+    assert used == other_used
+    for labels in (LOOP_LABELS, np.zeros(len(LOOP_LABELS), dtype=int), np.arange(len(LOOP_LABELS))):
+        assert posterior.log_prob(labels) == other_posterior.log_prob(labels)
+    committed, importance = np.random.SeedSequence(0, spawn_key=(cell_module.INFERENCE_KEY,)).spawn(2)
+    states = [seed.generate_state(4) for seed in sampler_seeds]
+    assert np.array_equal(states[0], committed.generate_state(4))
+    assert not np.array_equal(states[1], states[0])
+    assert np.array_equal(cell_module._inference_seeds(0, 1)[1].generate_state(4), importance.generate_state(4))
 
 
 def test_the_tie_area_does_not_decide_a_cell_without_normalised_ties(tmp_path):

@@ -11,7 +11,8 @@ time. Everything random is seeded from the cell's seed: the dataset by the
 simulator, and the inference streams (sampler, importance-sampling noise)
 from ``SeedSequence(seed, spawn_key=(INFERENCE_KEY,))``, a branch the
 simulator's own spawned streams never use. The same streams
-serve every variant of a seed (common random numbers across variants).
+serve every variant of a seed (common random numbers across variants);
+``inference.sampler_stream`` branches the sampler's stream alone.
 
 The posterior is paper eq. (2): the Poisson prior (eq. 8-9), the odometry
 likelihood (eq. 11-14) and the appearance likelihood (eq. 15-19, corrected).
@@ -158,7 +159,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
 def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     inference = cell["settings"]["inference"]
     posterior, used = build_posterior(cell, dataset)
-    sampler_seed, _ = _inference_seeds(cell["seed"])
+    sampler_seed, _ = _inference_seeds(cell["seed"], inference["sampler_stream"])
     method = inference["method"]
     moves = resolved_moves(inference["moves"], posterior.n)
     burn_in = resolved_burn_in(inference)
@@ -254,8 +255,12 @@ def disagreement(diagnostics: dict) -> str:
               'inference.method = "tempered"')
 
 
-def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
+def _inference_seeds(seed: int, sampler_stream: int = 0) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
+    """The cell's sampler and importance-sampling seeds; a ``sampler_stream`` other than 0 branches the sampler's
+    alone (``inference.sampler_stream``), so that the posterior stays the same."""
     sampler, importance = np.random.SeedSequence(seed, spawn_key=(INFERENCE_KEY,)).spawn(2)
+    if sampler_stream:
+        sampler = np.random.SeedSequence(sampler.entropy, spawn_key=(*sampler.spawn_key, sampler_stream))
     return sampler, importance
 
 

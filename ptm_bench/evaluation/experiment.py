@@ -108,6 +108,11 @@ DEFAULTS = {
         # as the committed results were run
         "warm_up": "all",
         "temperatures": [1.0, 0.5, 0.25, 0.12, 0.06, 0.03],  # inverse temperatures of method "tempered"
+        # which random stream drives the sampler (chains, moves, warm-ups); the posterior, its importance-sampling
+        # noise included, is the same for every stream. 0 (the default) is the stream every committed result
+        # used; another value reruns a cell with other chains, to see whether its agreement was luck (README
+        # "Scale", "Other sampler streams")
+        "sampler_stream": 0,
     },
     "odometry": {
         "sigma_xy": 0.1,
@@ -301,7 +306,8 @@ _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coo
                ("odometry", "penalty_proposal"): "subspace", ("inference", "max_doublings"): 0,
                ("inference", "estimate"): "frequency", ("inference", "warm_up"): "guided",
                ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5,
-               ("odometry", "tie_area"): "bounding_box", ("inference", "unscreened_share"): 0.0}
+               ("odometry", "tie_area"): "bounding_box", ("inference", "unscreened_share"): 0.0,
+               ("inference", "sampler_stream"): 0}
 #: Keys that act only when another key of their section is true: left out of a cell's definition when it is
 #: false, so that changing their default does not make the cells that switch them off stale.
 _DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers", ("odometry", "tie_area"): "tie_normaliser"}
@@ -521,6 +527,7 @@ _VALUE_CHECKS = {
         "delayed_acceptance": (lambda v: isinstance(v, bool), "true or false"),
         "unscreened_share": (lambda v: _is_number(v) and 0 <= v <= 1, "a number in [0, 1]"),
         "exact_max_n": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+        "sampler_stream": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
         "temperatures": (_is_temperature_ladder, "a list of inverse temperatures from 1.0 strictly down to a positive value"),
     },
     "odometry": {
