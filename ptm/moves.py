@@ -50,12 +50,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._cache import BoundedCache
-from ._validation import count
+from ._validation import count, share
 from .partitions import Block, Partition, log_stirling2_two
 
 __all__ = [
     "ChainState", "Proposal", "SplitMerge", "GibbsReassign", "MapReassign", "SequentialSplitMerge", "GuidedSplitMerge",
-    "WindowReallocation", "TrailingReallocation",
+    "WindowReallocation", "MapWindowReallocation", "TrailingReallocation",
     "merge_log_q_ratio", "split_log_q_ratio", "initial_state", "apply_proposal",
 ]
 
@@ -463,17 +463,23 @@ class WindowReallocation:
         labels = state.partition.labels
         kept = [tuple(member for member in block if member not in window) for block in state.blocks]
         left_behind = tuple(block for block in kept if block)
-        old_home = {detection: labels[detection] for detection in window}
-        forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window, self._options)
-        _, log_q_reverse = _allocate_in_order(rng, posterior, left_behind, window, self._options,
-                                              old=(state.blocks, old_home))
+        old = (state.blocks, {detection: labels[detection] for detection in window})
+        forward, log_q_forward = _allocate_in_order(rng, posterior, left_behind, window, self._options,
+                                                    steer=self._steer(left_behind, window))
         before = set(state.blocks)
         added = tuple(sorted(block for block in forward if block not in before))
         if not added:
             return None
+        _, log_q_reverse = _allocate_in_order(rng, posterior, left_behind, window, self._options, old,
+                                              self._steer(left_behind, window))
         after = set(forward)
         removed = tuple(index for index, block in enumerate(state.blocks) if block not in after)
         return Proposal(removed, added, log_q_reverse - log_q_forward)
+
+    def _steer(self, left_behind, window):
+        """A fresh steering of one allocation (see :func:`_allocate_in_order`), a function of the sets left
+        behind and the window only, which T and T' share; None: the cheap terms alone."""
+        return None
 
     def _window(self, rng, n: int) -> range:
         """The detections allocated again: ``window`` consecutive ones from a uniform start."""
@@ -492,12 +498,51 @@ class TrailingReallocation(WindowReallocation):
         return range(max(0, n - self.window), n)
 
 
-def _allocate_in_order(rng, posterior, left_behind, detections, options: BoundedCache, old=None):
+class MapWindowReallocation(WindowReallocation):
+    """:class:`WindowReallocation` steered by the map of the sets left behind.
+
+    The map is that of T0 + the window's detections each alone (the window dead-reckoned from the detection
+    before it), the same from T and from T', so the Hastings ratio stays a replay of T's allocation. Each
+    member's option of joining a set is raised by ``trust`` times its estimated change of the odometry terms
+    under that map, conditioned on the joins made so far in the window (:class:`ptm.surrogate.ConditionedMap`:
+    the tie's Occam factor and misfit, and the landmark-density penalty it gives back); a new set by
+    nothing. q then follows the window's conditional given the rest, and a retraced corridor closes in one
+    move with no appearance at all, where each single closure is worse than none (the first one bends the
+    map against the others, and leaves their neighbours side by side, apart).
+    """
+
+    name = "map_window_reallocation"
+
+    def __init__(self, surrogate, window: int = 8, trust: float = 1.0):
+        super().__init__(window)
+        self.surrogate, self.trust = surrogate, share("trust", trust)
+
+    def _steer(self, left_behind, window):
+        open_window = Partition(tuple(sorted(left_behind + tuple((detection,) for detection in window))))
+        return _MapSteering(self.surrogate.conditioned_map(open_window), self.trust)
+
+
+class _MapSteering:
+    """The steering of one :class:`MapWindowReallocation` allocation: weights from a conditioned map, which
+    each join then conditions."""
+
+    def __init__(self, conditioned, trust: float):
+        self.conditioned, self.trust = conditioned, trust
+
+    def weights(self, detection: int, sets) -> np.ndarray:
+        return self.trust * self.conditioned.join_changes(detection, sets)
+
+    def joined(self, detection: int, set_index: int) -> None:
+        self.conditioned.tie(detection, set_index)
+
+
+def _allocate_in_order(rng, posterior, left_behind, detections, options: BoundedCache, old=None, steer=None):
     """The sets after ``detections`` join ``left_behind`` one by one (:class:`WindowReallocation`), and the
     log probability of that allocation; with ``old`` = (the blocks of T, each detection's block index in T),
     replay T's allocation instead of drawing one. ``options`` memoises each step's options by posterior, sets
     so far and detection: copies of one particle, and a chain that proposes from the same state again, meet
-    the same steps."""
+    the same steps. ``steer``, if given, adds ``steer.weights(detection, sets)`` to the options of joining
+    ``sets``, and hears of each join made (``steer.joined(detection, set_index)``; :meth:`WindowReallocation._steer`)."""
     score = posterior.block_score
     sets = list(left_behind)
     set_scores = [score(block) for block in sets]  # kept in step with sets: each set is scored once per change
@@ -510,6 +555,10 @@ def _allocate_in_order(rng, posterior, left_behind, detections, options: Bounded
             step = _allocation_options(posterior, sets, set_scores, detection)
             options.put(key, step)
         grown, log_weights, log_norm = step
+        if steer is not None and sets:
+            log_weights = log_weights.copy()
+            log_weights[:-1] += steer.weights(detection, sets)
+            log_norm = float(np.logaddexp.reduce(log_weights))
         if old is None:
             pick = _draw(rng, log_weights)
         else:
@@ -517,6 +566,8 @@ def _allocate_in_order(rng, posterior, left_behind, detections, options: Bounded
             placed = [member for member in blocks[home[detection]] if member in home_of]
             pick = home_of[placed[0]] if placed else len(sets)
         log_q += float(log_weights[pick]) - log_norm
+        if steer is not None and pick < len(sets):
+            steer.joined(detection, pick)
         if pick == len(sets):
             sets.append((detection,))
             set_scores.append(grown[pick])

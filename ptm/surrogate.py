@@ -61,7 +61,7 @@ from .odometry import OdometryTerm
 from .partitions import Partition
 from .pose_graph import poses_from_vector
 
-__all__ = ["OdometrySurrogate", "MapEstimate"]
+__all__ = ["OdometrySurrogate", "MapEstimate", "ConditionedMap"]
 
 #: Map estimates kept (each holds the (2N, 2N) covariance of the positions): the current partitions of a
 #: few chains and replicas, and the proposals the second stage just evaluated.
@@ -70,6 +70,9 @@ MAP_ESTIMATES_KEPT = 64
 #: share of the separation's spread sqrt(trace Cov), or the covariance by more than this share of its trace
 #: (else the term is kept as it was).
 PAIR_TOLERANCE = 0.05
+#: Gaussians of the positions kept for :meth:`OdometrySurrogate.conditioned_map` (the map-steered window meets one
+#: per window start and state; each holds a (2N, 2N) covariance, 0.5 MB at N = 120).
+OPEN_MAPS_KEPT = 128
 
 
 @dataclass(frozen=True)
@@ -104,18 +107,7 @@ class MapEstimate:
         mode = term.laplace_mode(partition)
         if mode is None:
             return None
-        graph = term.graph
-        topology = graph.topology(partition.labels)
-        point = graph.linearise(mode, topology)
-        factor = graph.factorise(topology, point.gauss_newton)
-        laplace = -point.energy + 0.5 * graph.dimension * math.log(2.0 * math.pi) - 0.5 * factor.log_det()
-        free_positions = np.flatnonzero(np.arange(graph.dimension) % 3 != 2)  # x, y of poses 1..N-1
-        selector = np.zeros((graph.dimension, len(free_positions)))
-        selector[free_positions, np.arange(len(free_positions))] = 1.0
-        covariance = np.zeros((2 * term.n, 2 * term.n))
-        covariance[2:, 2:] = factor.solve(selector)[free_positions]
-        covariance = 0.5 * (covariance + covariance.T)
-        positions = poses_from_vector(mode)[:, :2]
+        positions, covariance, laplace = _position_gaussian(term, partition, mode)
         first, second = _pairs(term.n)
         blocks = covariance.reshape(term.n, 2, term.n, 2)
         own = blocks[np.arange(term.n), :, np.arange(term.n), :]  # (N, 2, 2)
@@ -183,14 +175,8 @@ class MapEstimate:
         n = len(self.labels)
         others = np.arange(n) != detection
         pairs = _pair_indices(n)[detection, others]
-        covariances = self.separation_covariances[pairs]
-        variance = self.sigma_topology**2
-        xx, xy, yy = covariances[:, 0, 0] + variance, covariances[:, 0, 1], covariances[:, 1, 1] + variance
-        determinant = xx * yy - xy * xy  # det(C + sigma_T^2 I) > 0
-        x, y = self.separations[pairs, 0], self.separations[pairs, 1]
-        mahalanobis = (yy * x * x - 2.0 * xy * x * y + xx * y * y) / determinant
         changes = np.zeros(n)
-        changes[others] = -0.5 * (np.log(determinant) - 2.0 * math.log(variance)) - 0.5 * mahalanobis
+        changes[others] = _tie_changes(self.separations[pairs], self.separation_covariances[pairs], self.sigma_topology)
         return changes
 
     def _gaussian_tie(self, removed, added):
@@ -213,6 +199,23 @@ class MapEstimate:
             return None
         gain = precision @ np.linalg.inv(system)  # symmetric
         return -0.5 * log_det - 0.5 * float(mean @ gain @ mean), members, gain
+
+
+def _position_gaussian(term: OdometryTerm, partition: Partition, mode: np.ndarray):
+    """The positions' mean (N, 2) and covariance (2N, 2N; x_0, y_0, x_1, ...) under N(P*, H^-1) at the
+    Laplace mode ``mode`` of ``partition``, and the Laplace value there (docs/model.md §3.3, step 1)."""
+    graph = term.graph
+    topology = graph.topology(partition.labels)
+    point = graph.linearise(mode, topology)
+    factor = graph.factorise(topology, point.gauss_newton)
+    laplace = -point.energy + 0.5 * graph.dimension * math.log(2.0 * math.pi) - 0.5 * factor.log_det()
+    free_positions = np.flatnonzero(np.arange(graph.dimension) % 3 != 2)  # x, y of poses 1..N-1
+    selector = np.zeros((graph.dimension, len(free_positions)))
+    selector[free_positions, np.arange(len(free_positions))] = 1.0
+    covariance = np.zeros((2 * term.n, 2 * term.n))
+    covariance[2:, 2:] = factor.solve(selector)[free_positions]
+    covariance = 0.5 * (covariance + covariance.T)
+    return poses_from_vector(mode)[:, :2], covariance, laplace
 
 
 @functools.lru_cache(maxsize=8)
@@ -285,6 +288,74 @@ def _penalised_area(penalty_radius: float, max_penalty: float) -> float:
     return float(math.pi * penalty_radius * np.sum(weights * integrand))
 
 
+class ConditionedMap:
+    """The positions of a map estimate, conditioned on ties one at a time: where the detections of a window
+    are likely to be once some of them have joined their places (:class:`ptm.moves.MapWindowReallocation`).
+
+    Under each odometry term's Gaussian N(mu, C) of the positions (:class:`MapEstimate`), a tie of detection
+    i to detection m is the observation t_i - t_m = 0 with noise sigma_T^2 I, and conditioning on it is a
+    Kalman update of mu and C (rank 2, O(N^2)). The first tie of a retraced corridor pulls its neighbours
+    onto their places too, so the ties after it are scored as they will be paid, not under the drift of the
+    unconditioned map. :meth:`join_changes` scores joining each of some sets as :meth:`MapEstimate.single_tie_changes`
+    to its most compatible member plus the landmark-density penalty given back (eq. 11-12, as in
+    :meth:`OdometrySurrogate.join_estimates`), and :meth:`tie` conditions on the last scored join.
+    """
+
+    def __init__(self, gaussians):
+        """``gaussians``: per odometry term, (positions (N, 2), covariance (2N, 2N), sigma_T, penalty radius,
+        max penalty); copied, so that conditioning leaves them as they were."""
+        self._terms = [(positions.ravel().copy(), covariance.copy(), sigma, radius, max_penalty)
+                       for positions, covariance, sigma, radius, max_penalty in gaussians]
+        self._best_members: list[int] = []
+
+    def join_changes(self, detection: int, sets) -> np.ndarray:
+        """For each of ``sets`` (sorted tuples without ``detection``), the estimated change of the odometry
+        terms if ``detection`` joined it, under the map conditioned so far."""
+        members = np.concatenate([np.asarray(block) for block in sets])
+        starts = np.cumsum([0] + [len(block) for block in sets[:-1]])
+        ties = np.zeros(len(members))
+        given_back = np.zeros(len(sets))
+        for mean, covariance, sigma, radius, max_penalty in self._terms:
+            n = len(mean) // 2
+            positions, blocks = mean.reshape(n, 2), covariance.reshape(n, 2, n, 2)
+            separations = positions[detection] - positions[members]
+            cross = blocks[detection, :, members, :]  # (k, 2, 2): Cov(t_i, t_m)
+            spread = blocks[detection, :, detection, :] + blocks[members, :, members, :] - cross - cross.transpose(0, 2, 1)
+            ties += _tie_changes(separations, spread, sigma)
+            penalties = np.zeros(len(members))
+            near = np.flatnonzero(np.hypot(separations[:, 0], separations[:, 1])
+                                  < radius + 3.0 * np.sqrt(np.trace(spread, axis1=1, axis2=2)))  # else f = 0
+            penalties[near] = _pair_log_expectations(separations[near], spread[near], radius, max_penalty)
+            given_back -= np.add.reduceat(penalties, starts)
+        best = np.maximum.reduceat(ties, starts)
+        self._best_members = [int(members[start + np.argmax(ties[start:start + len(block)])])
+                              for start, block in zip(starts, sets)]
+        return best + given_back
+
+    def tie(self, detection: int, joined: int) -> None:
+        """Condition every term's map on ``detection`` sitting at the place of set ``joined`` of the last
+        :meth:`join_changes` (a tie to that set's most compatible member)."""
+        member = self._best_members[joined]
+        for mean, covariance, sigma, _, _ in self._terms:
+            first, second = slice(2 * detection, 2 * detection + 2), slice(2 * member, 2 * member + 2)
+            coupling = covariance[:, first] - covariance[:, second]  # Cov(t, t_i - t_m): (2N, 2)
+            innovation = coupling[first] - coupling[second] + sigma**2 * np.eye(2)
+            gain = np.linalg.solve(innovation, coupling.T).T
+            mean -= gain @ (mean[first] - mean[second])
+            covariance -= gain @ coupling.T
+
+
+def _tie_changes(separations, covariances, sigma: float) -> np.ndarray:
+    """The change of the Laplace value of one tie of noise sigma on each separation r ~ N(s, C) (in the
+    Gaussian; :meth:`MapEstimate.single_tie_changes`): -1/2 log det(I + C / sigma^2) - 1/2 s^T (C + sigma^2 I)^-1 s."""
+    variance = sigma**2
+    xx, xy, yy = covariances[:, 0, 0] + variance, covariances[:, 0, 1], covariances[:, 1, 1] + variance
+    determinant = xx * yy - xy * xy
+    x, y = separations[:, 0], separations[:, 1]
+    mahalanobis = (yy * x * x - 2.0 * xy * x * y + xx * y * y) / determinant
+    return -0.5 * (np.log(determinant) - 2.0 * math.log(variance)) - 0.5 * mahalanobis
+
+
 SCREENING_TRUST = 0.5  # the default weight of a prediction where it steers or screens a proposal (screening_change)
 
 
@@ -306,6 +377,7 @@ class OdometrySurrogate:
         self.screening_trust = float(screening_trust)
         self.terms = [term for term in posterior.global_terms if isinstance(term, OdometryTerm)]
         self._estimates = BoundedCache(estimates_kept)
+        self._gaussians = BoundedCache(OPEN_MAPS_KEPT)
         self._predictions = BoundedCache(predictions_kept)
         self._approximations = BoundedCache(predictions_kept)
         self._seconds = 0.0
@@ -330,21 +402,42 @@ class OdometrySurrogate:
             self._predictions.put(key, change)
         return change
 
-    def join_estimates(self, partition: Partition, detection: int) -> np.ndarray:
-        """For each set of ``partition`` other than ``detection``'s own (a set of one), a cheap estimate of the
-        change of the global terms if ``detection`` joined it: per odometry term, the least
+    def join_estimates(self, partition: Partition, detection: int, sets=None) -> np.ndarray:
+        """For each of ``sets`` (default: every set of ``partition`` other than ``detection``'s own, a set of
+        one; none may hold ``detection``), a cheap estimate under the map of ``partition`` of the change of the
+        global terms if ``detection`` joined it: per odometry term, the least
         :meth:`MapEstimate.single_tie_changes` over the set's members for the Laplace part, plus the members'
-        penalty terms given back. Meant only to pick the sets worth a :meth:`predicted_change`."""
-        others = [block for block in partition.blocks if block != (detection,)]
-        members = np.concatenate([np.asarray(block) for block in others])
-        starts = np.cumsum([0] + [len(block) for block in others[:-1]])
-        total = np.zeros(len(others))
+        penalty terms given back. Meant to pick the sets worth a :meth:`predicted_change`, and to steer the
+        map-guided window (:class:`ptm.moves.MapWindowReallocation`)."""
+        if sets is None:
+            sets = [block for block in partition.blocks if block != (detection,)]
+        total = np.zeros(len(sets))
+        if not sets:
+            return total
+        members = np.concatenate([np.asarray(block) for block in sets])
+        starts = np.cumsum([0] + [len(block) for block in sets[:-1]])
         for estimate in self.map_estimates(partition):
             if estimate is not None:
                 laplace = estimate.single_tie_changes(detection)[members]
                 given_back = -estimate.penalty_terms[_pair_indices(len(estimate.labels))[detection, members]]
                 total += np.minimum.reduceat(laplace, starts) + np.add.reduceat(given_back, starts)
         return total
+
+    def conditioned_map(self, partition: Partition) -> ConditionedMap:
+        """A fresh :class:`ConditionedMap` of the Laplace fits of ``partition`` (their Gaussians of the positions
+        are memoised apart from the map estimates, ``OPEN_MAPS_KEPT``, without the pairs' arrays)."""
+        gaussians = self._gaussians.get(partition)
+        if gaussians is None:
+            gaussians = []
+            for term in self.terms:
+                mode = term.laplace_mode(partition)
+                if mode is not None:
+                    positions, covariance, _ = _position_gaussian(term, partition, mode)
+                    model = term.model
+                    gaussians.append((positions, covariance, model.sigma_topology, model.penalty_radius,
+                                      model.max_penalty))
+            self._gaussians.put(partition, gaussians)
+        return ConditionedMap(gaussians)
 
     def screening_change(self, partition: Partition, removed, added) -> float:
         """What proposals and the first stage of delayed acceptance use: ``screening_trust`` (default

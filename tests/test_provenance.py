@@ -265,6 +265,7 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     ("odometry", "tie_area", "bounding_box", "route", "hull", "tie_area must be"),  # and this
     ("inference", "unscreened_share", 0.0, 0.05, 1.5, "unscreened_share must be"),  # and this
     ("inference", "sampler_stream", 0, 1, -1, "sampler_stream must be"),  # the default is the old stream
+    ("inference", "map_window", "none", "default", True, "inference.map_window"),  # a new default
 ])
 def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):

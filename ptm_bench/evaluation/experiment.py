@@ -53,6 +53,7 @@ MODEL_NAMES = ("odometry", "appearance")
 BASELINE_NAMES = ("greedy_odometry", "appearance_threshold")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n, else tempered
 MOVE_SETS = ("auto", "default", "paper", "guided")
+MAP_WINDOWS = ("default", "all", "none")
 WARM_UPS = ("all", "guided")
 ESTIMATES = ("frequency", "renormalised", "auto")  # ptm.sampler.ESTIMATES
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
@@ -113,6 +114,13 @@ DEFAULTS = {
         # used; another value reruns a cell with other chains, to see whether its agreement was luck (README
         # "Scale", "Other sampler streams")
         "sampler_stream": 0,
+        # where the window of consecutive detections allocated again jointly is steered by the map
+        # (ptm.moves.MapWindowReallocation): "default" (the default moves take it, one step in ten, where there is
+        # odometry), "all" (the guided moves' window too), "none" (as the committed results were run). A loop whose
+        # single closures are each worse than none then closes in one move (nested_loops, 12 detections, odometry
+        # alone: truth 0.21-0.75 without it on seeds 0-3, 0.985-1.000 with it); on the scale grids it cost
+        # 1.5-3.5 times the wall time and made two of three disagreeing runs agree, so "default" leaves them be
+        "map_window": "default",
     },
     "odometry": {
         "sigma_xy": 0.1,
@@ -307,7 +315,7 @@ _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coo
                ("inference", "estimate"): "frequency", ("inference", "warm_up"): "guided",
                ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5,
                ("odometry", "tie_area"): "bounding_box", ("inference", "unscreened_share"): 0.0,
-               ("inference", "sampler_stream"): 0}
+               ("inference", "sampler_stream"): 0, ("inference", "map_window"): "none"}
 #: Keys that act only when another key of their section is true: left out of a cell's definition when it is
 #: false, so that changing their default does not make the cells that switch them off stale.
 _DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers", ("odometry", "tie_area"): "tie_normaliser"}
@@ -375,6 +383,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
     _check_choice(merged["inference"]["method"], METHODS, f"{where} inference.method", source)
     _check_choice(merged["inference"]["moves"], MOVE_SETS, f"{where} inference.moves", source)
     _check_choice(merged["inference"]["warm_up"], WARM_UPS, f"{where} inference.warm_up", source)
+    _check_choice(merged["inference"]["map_window"], MAP_WINDOWS, f"{where} inference.map_window", source)
     _check_choice(merged["inference"]["estimate"], ESTIMATES, f"{where} inference.estimate", source)
     _check_choice(merged["odometry"]["sampling_coordinates"], SAMPLING_COORDINATES,
                   f"{where} odometry.sampling_coordinates", source)
