@@ -84,7 +84,7 @@ def guided_moves(posterior, surrogate, map_window: bool = False):
     reassignment, and the joint reallocation of a window of consecutive detections (a retraced corridor),
     steered by the cheap terms alone (:class:`ptm.moves.WindowReallocation`) or, with ``map_window``, by the map
     as well (:class:`ptm.moves.MapWindowReallocation`: on three 57-121-detection grids whose chains disagreed it
-    made two of three agree, at 1.5-3.5 times the wall time, so it is not the default here)."""
+    made two of three agree, at up to 3.6 times the wall time, so it is not the default here)."""
     window = MapWindowReallocation(surrogate) if map_window else WindowReallocation()
     return [(GuidedSplitMerge(posterior), 0.35), (MapReassign(surrogate), 0.2), (GibbsReassign(), 0.35),
             (window, 0.1)]

@@ -119,7 +119,7 @@ DEFAULTS = {
         # odometry), "all" (the guided moves' window too), "none" (as the committed results were run). A loop whose
         # single closures are each worse than none then closes in one move (nested_loops, 12 detections, odometry
         # alone: truth 0.21-0.75 without it on seeds 0-3, 0.985-1.000 with it); on the scale grids it cost
-        # 1.5-3.5 times the wall time and made two of three disagreeing runs agree, so "default" leaves them be
+        # up to 3.6 times the wall time and made two of three disagreeing runs agree, so "default" leaves them be
         "map_window": "default",
     },
     "odometry": {
