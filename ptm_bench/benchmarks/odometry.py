@@ -113,12 +113,14 @@ def odometry_rows(args) -> list[dict]:
     steps = max(500, int(5_000 * args.scale))
     dataset = synthetic_route_dataset(CHAIN_SIZE)
     appearance = ptm.AppearanceModel(mu=0.25, kappa=0.1, alpha=3.0, beta=2.0 * 0.01**2)
-    for delayed in (False, True):
+    for name in ("plain", "delayed_acceptance", "map_window"):
         posterior = ptm.Posterior(dataset, ptm.PoissonPrior(rate=CHAIN_SIZE / 3), [appearance, odometry_model()])
+        # map_window: the default moves with the map-steered window (the harness's default below 20 detections)
+        moves = ptm.sampler.default_moves(ptm.surrogate.OdometrySurrogate(posterior)) if name == "map_window" else None
         started = time.perf_counter()
-        result = ptm.mcmc(posterior, steps, seed=1, init=dataset.labels, delayed_acceptance=delayed)
+        result = ptm.mcmc(posterior, steps, seed=1, init=dataset.labels, delayed_acceptance=name != "plain",
+                          moves=moves)
         rate = steps / (time.perf_counter() - started)
-        name = "delayed_acceptance" if delayed else "plain"
         odometry = result.diagnostics["odometry"]
         rows += [
             {"section": "odometry", "metric": f"mh_steps_per_s_odometry_appearance_{name}", "n": CHAIN_SIZE,
