@@ -11,7 +11,8 @@ grid in random order, odometry composed on SE(2) with noise):
   (the default) and in the poses (metrics ending ``_poses``, erratum E12);
 * the odometry cache hit rate, the mean effective sample size of the weights
   and the MH steps per second of a chain with odometry + appearance at N = 50,
-  with plain and with delayed acceptance.
+  with plain and with delayed acceptance, and with delayed acceptance and the map-steered window in the
+  default moves (metrics ending ``_map_window``).
 
     $ ptm-bench speed --section odometry
     $ ptm-bench speed --section odometry --scale 0.2   # quicker, noisier
