@@ -30,6 +30,10 @@ sampler re-scores only what changed.
   corridor that a run of single moves cannot (each step alone is worse).
   :class:`TrailingReallocation` is the window of the last detections, for
   the online mapper.
+* :class:`MapWindowReallocation` — the same window, each member's options
+  weighed by the odometry map of the sets left behind as well, conditioned on
+  the joins made so far (:class:`ptm.surrogate.ConditionedMap`): it closes a
+  loop with no appearance at all, where each single closure is worse than none.
 
     >>> import math
     >>> from ptm import Dataset, PoissonPrior, Posterior
