@@ -18,6 +18,8 @@ in ``experiments/`` use exact posteriors or tempering instead.
 """
 
 import copy
+import fcntl
+import os
 
 import numpy as np
 import pytest
@@ -70,9 +72,20 @@ def run_conditions(folder, seeds=SEEDS, workers=2):
     return tables
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def tables(tmp_path_factory):
-    return run_conditions(tmp_path_factory.mktemp("accuracy"))
+    """The sweep, run once per test session. pytest-xdist may hand this module's tests to several workers (its
+    ``xdist_group`` is not honoured by the versions installed here), so the workers share one folder in the
+    session's temporary directory: the first to take the lock sweeps, the others wait and then read its finished
+    cells (a sweep skips the cells its table already holds)."""
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the session's directory, holding every worker's own
+    folder = shared / "accuracy_sweep"
+    folder.mkdir(exist_ok=True)
+    with open(folder / "sweep.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or when a worker dies
+        return run_conditions(folder)
 
 
 def mass(table, variant, aliasing=None):
