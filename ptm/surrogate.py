@@ -322,11 +322,7 @@ class ConditionedMap:
             cross = blocks[detection, :, members, :]  # (k, 2, 2): Cov(t_i, t_m)
             spread = blocks[detection, :, detection, :] + blocks[members, :, members, :] - cross - cross.transpose(0, 2, 1)
             ties += _tie_changes(separations, spread, sigma)
-            penalties = np.zeros(len(members))
-            near = np.flatnonzero(np.hypot(separations[:, 0], separations[:, 1])
-                                  < radius + 3.0 * np.sqrt(np.trace(spread, axis1=1, axis2=2)))  # else f = 0
-            penalties[near] = _pair_log_expectations(separations[near], spread[near], radius, max_penalty)
-            given_back -= np.add.reduceat(penalties, starts)
+            given_back -= np.add.reduceat(_pair_log_expectations(separations, spread, radius, max_penalty), starts)
         best = np.maximum.reduceat(ties, starts)
         self._best_members = [int(members[start + np.argmax(ties[start:start + len(block)])])
                               for start, block in zip(starts, sets)]
@@ -402,20 +398,15 @@ class OdometrySurrogate:
             self._predictions.put(key, change)
         return change
 
-    def join_estimates(self, partition: Partition, detection: int, sets=None) -> np.ndarray:
-        """For each of ``sets`` (default: every set of ``partition`` other than ``detection``'s own, a set of
-        one; none may hold ``detection``), a cheap estimate under the map of ``partition`` of the change of the
-        global terms if ``detection`` joined it: per odometry term, the least
+    def join_estimates(self, partition: Partition, detection: int) -> np.ndarray:
+        """For each set of ``partition`` other than ``detection``'s own (a set of one), a cheap estimate of the
+        change of the global terms if ``detection`` joined it: per odometry term, the least
         :meth:`MapEstimate.single_tie_changes` over the set's members for the Laplace part, plus the members'
-        penalty terms given back. Meant to pick the sets worth a :meth:`predicted_change`, and to steer the
-        map-guided window (:class:`ptm.moves.MapWindowReallocation`)."""
-        if sets is None:
-            sets = [block for block in partition.blocks if block != (detection,)]
-        total = np.zeros(len(sets))
-        if not sets:
-            return total
-        members = np.concatenate([np.asarray(block) for block in sets])
-        starts = np.cumsum([0] + [len(block) for block in sets[:-1]])
+        penalty terms given back. Meant only to pick the sets worth a :meth:`predicted_change`."""
+        others = [block for block in partition.blocks if block != (detection,)]
+        members = np.concatenate([np.asarray(block) for block in others])
+        starts = np.cumsum([0] + [len(block) for block in others[:-1]])
+        total = np.zeros(len(others))
         for estimate in self.map_estimates(partition):
             if estimate is not None:
                 laplace = estimate.single_tie_changes(detection)[members]
