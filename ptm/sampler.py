@@ -359,8 +359,13 @@ class MoveMixture:
 #: How a sampler turns its chains into probabilities (:class:`SampleRecorder`).
 ESTIMATES = ("frequency", "renormalised", "auto")
 #: ``estimate = "auto"`` renormalises when every chain visited topologies holding at least this share of the
-#: renormalised mass of all chains' (:meth:`SampleRecorder.chain_coverage`).
+#: renormalised mass of all chains' (:meth:`SampleRecorder.chain_coverage`), strays apart.
 RENORMALISE_COVERAGE = 0.99
+#: A chain whose visited topologies hold less than this share of that mass is a stray: it sits in a mode that the
+#: renormalised estimate gives almost nothing (less than this share, so no co-assignment moves by more), and
+#: ``"auto"`` judges the coverage of the other chains alone. On four 57-121-detection grids one chain of four stayed
+#: 90-203 nats below the others' topologies; their frequencies gave its mode a quarter of the mass.
+STRAY_CHAIN_MASS = 0.01
 
 
 def checked_estimate(estimate: str) -> str:
@@ -383,7 +388,9 @@ class SampleRecorder:
     topologies (a flat posterior over very many). ``"auto"`` decides by the chains themselves: renormalised
     when each of several chains visited topologies holding at least ``RENORMALISE_COVERAGE`` of the
     renormalised mass of all of them (:meth:`chain_coverage`), frequency otherwise;
-    ``diagnostics["estimate"]`` says which was used.
+    ``diagnostics["estimate"]`` says which was used. A stray chain, whose topologies hold less than
+    ``STRAY_CHAIN_MASS`` of that mass (a mode it never left, far below the others'), is not asked to cover the
+    others' (:meth:`chain_coverages`): their frequencies would give its mode a whole chain's share.
     """
 
     def __init__(self, chains: int, n_samples: int, estimate: str = "frequency"):
@@ -423,27 +430,47 @@ class SampleRecorder:
         self.num_places = np.pad(self.num_places, ((0, 0), (0, grown)))
         self.n_samples = n_samples
 
-    def chain_coverage(self) -> float:
-        """The smallest share, over chains, of the renormalised mass of every visited topology that a chain
-        visited itself (1 when the chains visited the same topologies; NaN with one chain)."""
+    def chain_coverages(self) -> np.ndarray:
+        """Each chain's share of the renormalised mass of every visited topology: the mass of the topologies it
+        visited itself (1 for each when the chains visited the same topologies)."""
         self.flush()
-        if len(self.chain_counts) < 2:
-            return math.nan
         mass = dict(zip(self.counts, self._weights(self.counts, "renormalised")))
         total = sum(mass.values())
-        return min(sum(mass[partition] for partition in counts) / total for counts in self.chain_counts)
+        return np.array([sum(mass[partition] for partition in counts) / total for counts in self.chain_counts])
+
+    def chain_coverage(self) -> float:
+        """The smallest of :meth:`chain_coverages` (NaN with one chain)."""
+        return float(self.chain_coverages().min()) if len(self.chain_counts) > 1 else math.nan
+
+    def strays(self) -> dict:
+        """The stray chains (``STRAY_CHAIN_MASS``): ``stray_chains``, their number, and where there are some,
+        ``stray_mass_max``, the largest share of the renormalised mass that one of them visited, and
+        ``stray_log_prob_gap``, how far the best topology a stray visited lies below the best of all [nats]."""
+        coverages = self.chain_coverages()
+        stray = np.flatnonzero(coverages < STRAY_CHAIN_MASS)
+        if not len(stray):
+            return {"stray_chains": 0}
+        best = max(self._log_prob_of[partition] for partition in self.counts)
+        best_of_strays = max(self._log_prob_of[partition] for index in stray for partition in self.chain_counts[index])
+        return {"stray_chains": len(stray), "stray_mass_max": float(coverages[stray].max()),
+                "stray_log_prob_gap": float(best - best_of_strays)}
 
     def resolved_estimate(self) -> str:
-        """The estimate used: :attr:`estimate`, with ``"auto"`` resolved by :meth:`chain_coverage`."""
+        """The estimate used: :attr:`estimate`, with ``"auto"`` resolved by :meth:`chain_coverages` of the chains
+        that are not strays."""
         if self.estimate != "auto":
             return self.estimate
-        return "renormalised" if self.chain_coverage() >= RENORMALISE_COVERAGE else "frequency"
+        if len(self.chain_counts) < 2:
+            return "frequency"
+        coverages = self.chain_coverages()
+        judged = coverages[coverages >= STRAY_CHAIN_MASS]
+        return "renormalised" if judged.min() >= RENORMALISE_COVERAGE else "frequency"
 
     def convergence(self) -> dict:
         """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain), and
         for several chains the largest difference between two chains' co-assignments, the chains'
-        coverage of the visited topologies (:meth:`chain_coverage`) and the estimate resolved
-        (:meth:`resolved_estimate`); else {}."""
+        coverage of the visited topologies (:meth:`chain_coverage`), the stray chains (:meth:`strays`) and the
+        estimate resolved (:meth:`resolved_estimate`); else {}."""
         self.flush()
         recorded = sum(self.counts.values())
         if self._convergence[0] == recorded:
@@ -457,6 +484,7 @@ class SampleRecorder:
         if chains > 1:
             diagnostics["coassignment_max_difference"] = self.coassignment_max_difference()
             diagnostics["chain_coverage_min"] = self.chain_coverage()
+            diagnostics.update(self.strays())
             diagnostics["estimate"] = self.resolved_estimate()  # what ptm.diagnostics.chains_agree judges by
         self._convergence = (recorded, diagnostics)
         return dict(diagnostics)

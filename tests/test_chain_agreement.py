@@ -56,6 +56,17 @@ def test_renormalised_estimates_are_judged_by_their_co_assignments_alone():
     assert "split R-hat of log P 1.6, of the number of places 2.1: not judged" in message
 
 
+def test_a_stray_chain_is_named_with_how_far_below_it_stayed():
+    stranded = {"rhat_log_prob": 5.19, "rhat_num_places": 5.19, "coassignment_max_difference": 1.0,
+                "estimate": "renormalised", "chains": 4, "stray_chains": 1, "stray_log_prob_gap": 90.01,
+                "stray_mass_max": 8.1e-40}
+    message = disagreement(stranded)
+    assert ptm.diagnostics.chains_agree(stranded) is False  # the chains did not mix, and the warning says so
+    assert ("1 of 4 chains stayed in topologies at least 90 nats below the best found (at most 8.1e-40 of the "
+            "renormalised mass each): the renormalised estimate gives their topologies next to nothing") in message
+    assert "stayed in topologies" not in disagreement({**stranded, "stray_chains": 0})
+
+
 def test_a_renormalising_run_stops_where_its_estimates_agree():
     """A run whose estimate renormalises records the estimate its agreement was judged by, and is not run on
     once its chains' estimates agree."""

@@ -1,11 +1,13 @@
 """How a sampler turns its chains into probabilities (docs/model.md §3.4): visit frequencies, the posterior
 renormalised over the visited topologies, or ``"auto"``, which renormalises only where every chain visited
-nearly all of the topologies any chain found.
+nearly all of the topologies any chain found, a chain stranded in a mode of next to no mass apart.
 
 The renormalised estimate is exact on what was visited: its total variation from the exact posterior is the
 exact mass of the topologies no chain visited. On a flat posterior, where chains keep finding new topologies,
 it is biased towards the best of them (the negative control), and ``"auto"`` keeps the frequencies there.
 """
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -65,6 +67,48 @@ def test_chains_are_judged_on_the_estimate_used():
     renormalised = ptm.mcmc(_peaked_posterior(), 3_000, burn_in=300, seed=2, chains=4, estimate="renormalised")
     assert renormalised.diagnostics["rhat_log_prob"] == frequency.diagnostics["rhat_log_prob"]  # same chains
     assert renormalised.diagnostics["coassignment_max_difference"] < frequency.diagnostics["coassignment_max_difference"]
+
+
+def _recorded(stray_log_prob: float) -> ptm.sampler.SampleRecorder:
+    """Four chains of 100 samples: chains 0-2 alternate between topologies A (log P 0) and B (log P -1), chain
+    3 never leaves C (log P ``stray_log_prob``)."""
+    from ptm.moves import initial_state
+
+    posterior = _peaked_posterior()
+    recorder = ptm.sampler.SampleRecorder(4, 100, estimate="auto")
+    states = {}
+    for name, labels, log_prob in (("A", (0, 1, 0, 1, 2, 0, 3), 0.0), ("B", (0, 1, 0, 1, 2, 3, 4), -1.0),
+                                   ("C", (0, 0, 1, 1, 2, 3, 4), stray_log_prob)):
+        state = initial_state(posterior, labels)
+        states[name] = dataclasses.replace(state, log_cheap=log_prob, log_global=0.0)
+    for chain in range(4):
+        for index in range(100):
+            recorder.keep(chain, index, states["C"] if chain == 3 else states["AB"[index % 2]])
+    return recorder
+
+
+def test_auto_renormalises_past_a_chain_stranded_far_below_the_others():
+    """A chain that stays in a mode 50 nats below what the others keep visiting (a retraced corridor aligned
+    one place off, on the scale grids) holds e^-50 of the renormalised mass; its frequency would be a quarter."""
+    recorder = _recorded(stray_log_prob=-50.0)
+    result = recorder.result("mcmc", {})
+    probabilities = dict(zip(map(tuple, result.partitions), result.probabilities))
+    assert result.diagnostics["estimate"] == "renormalised"
+    assert probabilities[(0, 0, 1, 1, 2, 3, 4)] < 1e-20
+    assert probabilities[(0, 1, 0, 1, 2, 0, 3)] / probabilities[(0, 1, 0, 1, 2, 3, 4)] == pytest.approx(np.e)
+    assert result.diagnostics["stray_chains"] == 1
+    assert result.diagnostics["stray_log_prob_gap"] == pytest.approx(50.0)
+    assert result.diagnostics["chain_coverage_min"] < 1e-20  # the stray's own coverage is still reported
+
+
+def test_a_chain_in_a_mode_that_matters_keeps_the_frequencies():
+    """The negative control: 3 nats below, the lone chain's mode holds 3.5 % of the renormalised mass, so it
+    is no stray, the other chains cover only 96 % and the frequencies stand (a quarter for its mode)."""
+    recorder = _recorded(stray_log_prob=-3.0)
+    result = recorder.result("mcmc", {})
+    probabilities = dict(zip(map(tuple, result.partitions), result.probabilities))
+    assert result.diagnostics["estimate"] == "frequency" and result.diagnostics["stray_chains"] == 0
+    assert probabilities[(0, 0, 1, 1, 2, 3, 4)] == pytest.approx(0.25)
 
 
 @pytest.mark.parametrize("sampler", [ptm.mcmc, ptm.tempered_mcmc])

@@ -238,8 +238,9 @@ def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> d
 
 def disagreement(diagnostics: dict) -> str:
     """A warning when a sampler's independent chains disagree (:func:`ptm.diagnostics.chains_agree`: split
-    R-hat of log P and of the number of places, co-assignments), saying what was reached, or "" when they
-    agree or the result has no several chains (the exact posterior, one chain).
+    R-hat of log P and of the number of places, co-assignments), saying what was reached and which chains
+    strayed into a mode far below the others', or "" when they agree or the result has no several chains (the
+    exact posterior, one chain).
 
         >>> disagreement({"rhat_log_prob": 1.52, "rhat_num_places": 1.01, "coassignment_max_difference": 0.4,
         ...               "doublings": 2})
@@ -259,8 +260,22 @@ def disagreement(diagnostics: dict) -> str:
                "does not count visits)")
     return (f"independent chains disagree: {reached}"
             + (f", after doubling the chains {doublings} time{'s' * (doublings != 1)}" if doublings else "")
+            + _strays(diagnostics)
             + '; the PTM is not converged: sample longer (inference.n_samples, inference.max_doublings), or try '
               'inference.method = "tempered"')
+
+
+def _strays(diagnostics: dict) -> str:
+    """The warning's account of stray chains (:meth:`ptm.sampler.SampleRecorder.strays`), or ""."""
+    strays = diagnostics.get("stray_chains", 0)
+    if not strays:
+        return ""
+    chains = diagnostics.get("chains")
+    counted = f"{strays} of {chains} chains" if chains else f"{strays} chain{'s' * (strays != 1)}"
+    kept = ("the renormalised estimate gives their topologies next to nothing"
+            if diagnostics.get("estimate") == "renormalised" else "their visits count in the frequencies")
+    return (f"; {counted} stayed in topologies at least {diagnostics['stray_log_prob_gap']:.3g} nats below the best "
+            f"found (at most {diagnostics['stray_mass_max']:.2g} of the renormalised mass each): {kept}")
 
 
 def _inference_seeds(seed: int, sampler_stream: int = 0) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
