@@ -426,7 +426,8 @@ def _estimate_entry(group: pd.DataFrame) -> str:
         low, high = f"{coverage.min():.3g}", f"{coverage.max():.3g}"
         detail = (f" (the worst chain's share of the visited topologies' renormalised mass: "
                   f"{low if low == high else f'{low} to {high}'}; \"auto\" renormalises from "
-                  f"{ptm.sampler.RENORMALISE_COVERAGE:g})")
+                  f"{ptm.sampler.RENORMALISE_COVERAGE:g}, stray chains below {ptm.sampler.STRAY_CHAIN_MASS:g} "
+                  "set aside)")
     return "  - `estimate`: " + "; ".join(parts) + detail
 
 
