@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import ptm
+from ptm.moves import initial_state
 
 
 def _peaked_posterior():
@@ -72,8 +73,6 @@ def test_chains_are_judged_on_the_estimate_used():
 def _recorded(stray_log_prob: float) -> ptm.sampler.SampleRecorder:
     """Four chains of 100 samples: chains 0-2 alternate between topologies A (log P 0) and B (log P -1), chain
     3 never leaves C (log P ``stray_log_prob``)."""
-    from ptm.moves import initial_state
-
     posterior = _peaked_posterior()
     recorder = ptm.sampler.SampleRecorder(4, 100, estimate="auto")
     states = {}
