@@ -390,7 +390,8 @@ class SampleRecorder:
     renormalised mass of all of them (:meth:`chain_coverage`), frequency otherwise;
     ``diagnostics["estimate"]`` says which was used. A stray chain, whose topologies hold less than
     ``STRAY_CHAIN_MASS`` of that mass (a mode it never left, far below the others'), is not asked to cover the
-    others' (:meth:`chain_coverages`): their frequencies would give its mode a whole chain's share.
+    others' (:meth:`chain_coverages`): their frequencies would give its mode a whole chain's share. At least two
+    chains that are not strays must cover it.
     """
 
     def __init__(self, chains: int, n_samples: int, estimate: str = "frequency"):
@@ -457,14 +458,14 @@ class SampleRecorder:
 
     def resolved_estimate(self) -> str:
         """The estimate used: :attr:`estimate`, with ``"auto"`` resolved by :meth:`chain_coverages` of the chains
-        that are not strays."""
+        that are not strays (at least two of them: one chain alone is no evidence that the bulk was found)."""
         if self.estimate != "auto":
             return self.estimate
         if len(self.chain_counts) < 2:
             return "frequency"
         coverages = self.chain_coverages()
         judged = coverages[coverages >= STRAY_CHAIN_MASS]
-        return "renormalised" if judged.min() >= RENORMALISE_COVERAGE else "frequency"
+        return "renormalised" if len(judged) >= 2 and judged.min() >= RENORMALISE_COVERAGE else "frequency"
 
     def convergence(self) -> dict:
         """Split R-hat and ESS of log P and of the number of places (with 4 or more samples per chain), and
