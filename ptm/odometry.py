@@ -64,9 +64,13 @@ Which minimum is P*: E has several local minima on implausible partitions
 (in the headings), and a fit started from the previous partition's optimum
 made the value depend on the chain's history (by hundreds of nats). P* is
 therefore defined from the partition alone: the fit is run from two fixed
-starts, dead reckoning and dead reckoning with the positions moved to their
-optimum given the dead-reckoned headings (one linear solve), and the
-converged minimum of lower energy counts. A fit that fails (iteration cap,
+starts and the converged minimum of lower energy counts. By default
+(``fit_starts="chordal"``) they are the chordal relaxation's headings with
+their optimal positions (two sparse linear solves,
+:mod:`ptm.pose_graph.chordal`) and dead reckoning; ``"aligned"`` (the rule
+until 2026-12-06) uses dead reckoning and dead reckoning with its positions
+moved to their optimum, and on long runs misses the minimum by hundreds of
+nats (docs/model.md §3.3, "Which minimum is P*"). A fit that fails (iteration cap,
 non-finite energy) is counted and listed per partition in the diagnostics:
 with a positive definite Hessian at its last iterate that Gaussian is the
 (documented) fallback proposal; without one the partition gets -inf, never NaN.
@@ -110,7 +114,7 @@ from .pose_graph import (SPARSE_ABOVE_DIMENSION, DenseFactor, LaplaceFit, PoseGr
                          odometry_sqrt_information, poses_from_vector)
 
 __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "PenaltyMixture", "PenalisedMode",
-           "PENALTY_PROPOSALS", "SAMPLING_COORDINATES", "compose_linearised_increments",
+           "FIT_STARTS", "PENALTY_PROPOSALS", "SAMPLING_COORDINATES", "compose_linearised_increments",
            "linearised_increment_offsets", "landmark_penalty"]
 
 #: Where the importance samples are drawn (``OdometryModel.sampling_coordinates``).
@@ -118,6 +122,10 @@ SAMPLING_COORDINATES = ("poses", "increments")
 #: How the proposal accounts for the penalty (``OdometryModel.penalty_proposal``): a Laplace fit of E + Pen
 #: over all poses, or only over the penalised detections' positions with the rest following linearly.
 PENALTY_PROPOSALS = ("mode", "subspace")
+#: The history-free starts of the Laplace fit whose lower minimum is P* (``OdometryModel.fit_starts``,
+#: :meth:`OdometryTerm.starts`): "chordal", the chordal relaxation's headings and dead reckoning; "aligned",
+#: dead reckoning with its positions aligned and dead reckoning (the rule until 2026-12-06).
+FIT_STARTS = ("chordal", "aligned")
 #: Iterations of the search for argmin (E + Pen) (:meth:`OdometryTerm.penalised_mode`), and the Newton
 #: decrement [nats] below which it stops: the centre of a proposal needs no more (and it converges only
 #: linearly on the Gauss-Newton Hessian, about ten times closer per iteration).
@@ -193,12 +201,21 @@ class OdometryModel:
         pushed through the composition (module docstring). Both estimate the
         same integral; on long routes only "increments" does so with useful
         effective sample sizes.
+    penalty_proposal : {"mode", "subspace"}
+        Where the importance proposal's penalty component is fitted (``PENALTY_PROPOSALS``).
+    fit_starts : {"chordal", "aligned"}
+        The fixed starts whose lower converged minimum is P* (``FIT_STARTS``,
+        :meth:`OdometryTerm.starts`). "chordal" (the default) starts from the
+        chordal relaxation's headings and from dead reckoning; "aligned", from dead
+        reckoning with its positions aligned and from dead reckoning, misses the
+        minimum of long runs (docs/model.md §3.3, "Which minimum is P*").
     """
 
     def __init__(self, sigma_xy: float = 0.1, sigma_theta: float = 0.05, sigma_topology: float = 0.3,
                  penalty_radius: float = 2.5, max_penalty: float = 100.0, n_importance: int = 100,
                  seed=0, cache_size: int = 100_000, sparse_above: int = SPARSE_ABOVE_DIMENSION,
-                 sampling_coordinates: str = "increments", penalty_proposal: str = "mode"):
+                 sampling_coordinates: str = "increments", penalty_proposal: str = "mode",
+                 fit_starts: str = "chordal"):
         self.sigma_xy = positive("sigma_xy", sigma_xy)
         self.sigma_theta = positive("sigma_theta", sigma_theta)
         self.sigma_topology = positive("sigma_topology", sigma_topology)
@@ -216,6 +233,9 @@ class OdometryModel:
         if penalty_proposal not in PENALTY_PROPOSALS:
             raise ValueError(f"penalty_proposal must be one of {PENALTY_PROPOSALS}, got {penalty_proposal!r}")
         self.penalty_proposal = penalty_proposal
+        if fit_starts not in FIT_STARTS:
+            raise ValueError(f"fit_starts must be one of {FIT_STARTS}, got {fit_starts!r}")
+        self.fit_starts = fit_starts
 
     def bind(self, dataset) -> "OdometryTerm":
         """The likelihood term of this model for ``dataset`` (which must carry odometry)."""
@@ -225,7 +245,8 @@ class OdometryModel:
         return (f"OdometryModel(sigma_xy={self.sigma_xy}, sigma_theta={self.sigma_theta}, "
                 f"sigma_topology={self.sigma_topology}, penalty_radius={self.penalty_radius}, "
                 f"max_penalty={self.max_penalty}, n_importance={self.n_importance}, seed={self.seed!r}, "
-                f"sampling_coordinates={self.sampling_coordinates!r}, penalty_proposal={self.penalty_proposal!r})")
+                f"sampling_coordinates={self.sampling_coordinates!r}, penalty_proposal={self.penalty_proposal!r}, "
+                f"fit_starts={self.fit_starts!r})")
 
 
 class OdometryTerm:
@@ -315,7 +336,7 @@ class OdometryTerm:
         return self._evaluate_canonical(np.asarray(_canonical_labels(partition)))
 
     #: The model's settings that the Laplace fit depends on (with the dataset); the others only sample.
-    FIT_SETTINGS = ("sigma_xy", "sigma_theta", "sigma_topology", "sparse_above")
+    FIT_SETTINGS = ("sigma_xy", "sigma_theta", "sigma_topology", "sparse_above", "fit_starts")
 
     def rebind(self, model: OdometryModel) -> "OdometryTerm":
         """The term of ``model`` on this term's dataset, sharing one memo of Laplace fits with this term.
@@ -448,9 +469,13 @@ class OdometryTerm:
     # -- the estimator's steps (public so that tests can check each one against dense algebra) ----------
 
     def starts(self, topology) -> tuple[np.ndarray, ...]:
-        """The history-free starts of the Laplace fit of ``topology``: dead reckoning, and dead reckoning
-        with the positions moved to their optimum given the dead-reckoned headings
+        """The history-free starts of the Laplace fit of ``topology``, by ``model.fit_starts``: "chordal", the
+        chordal relaxation's headings with their optimal positions
+        (:meth:`ptm.pose_graph.PoseGraph.chordal_start`), then dead reckoning; "aligned", dead reckoning,
+        then dead reckoning with the positions moved to their optimum given the dead-reckoned headings
         (:meth:`ptm.pose_graph.PoseGraph.aligned_start`)."""
+        if self.model.fit_starts == "chordal":
+            return self.graph.chordal_start(topology), self._dead_reckoning
         return self._dead_reckoning, self.graph.aligned_start(topology)
 
     def fit(self, labels) -> LaplaceFit:

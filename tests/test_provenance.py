@@ -266,6 +266,7 @@ def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead
     ("inference", "unscreened_share", 0.0, 0.05, 1.5, "unscreened_share must be"),  # and this
     ("inference", "sampler_stream", 0, 1, -1, "sampler_stream must be"),  # the default is the old stream
     ("inference", "map_window", "none", "default", True, "inference.map_window"),  # a new default
+    ("odometry", "fit_starts", "aligned", "chordal", "warm", "odometry.fit_starts"),  # and this
 ])
 def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
                                                                                other_value, invalid, refusal):
@@ -284,6 +285,19 @@ def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(t
     assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
     with pytest.raises(ValueError, match=refusal):
         cells({key: invalid})
+
+
+@pytest.mark.parametrize("fit_starts", ["chordal", "aligned"])
+def test_the_configured_fit_starts_reach_the_odometry_term(tmp_path, fit_starts):
+    """odometry.fit_starts decides which minimum is P* (docs/model.md §3.3): the cell's term fits from those starts."""
+    config = copy.deepcopy(CONFIG)
+    config["odometry"] = {**config["odometry"], "fit_starts": fit_starts}
+    cell = cells_with_cached_datasets(tmp_path, config)[0]
+    posterior, _ = build_posterior(cell, datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"]))
+    [term] = [term for term in posterior.terms if term.name == "odometry"]
+    assert term.model.fit_starts == fit_starts
+    chordal = term.graph.chordal_start(term.graph.topology(LOOP_LABELS))
+    assert np.array_equal(term.starts(term.graph.topology(LOOP_LABELS))[0], chordal) == (fit_starts == "chordal")
 
 
 def test_another_sampler_stream_runs_other_chains_on_the_same_posterior(tmp_path, monkeypatch):

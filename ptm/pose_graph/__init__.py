@@ -20,6 +20,8 @@ One module per concept:
   (half-bandwidth 5): :class:`BandedLowRankFactor` (banded Cholesky and the
   Woodbury identity) and, above ``sparse_above`` variables,
   :class:`SparseFactor` (SuperLU L D L^T);
+* :mod:`~ptm.pose_graph.chordal` -- the chordal relaxation, whose headings
+  start the fit that defines P* (:func:`chordal_headings`);
 * :mod:`~ptm.pose_graph.solver` -- :class:`PoseGraph`, whose
   :meth:`~PoseGraph.fit` finds P* = argmin E by damped Newton steps and
   factorises the Gauss-Newton Hessian there (:class:`LaplaceFit`).
@@ -35,6 +37,7 @@ One module per concept:
     (True, 0.0335, 61.84)
 """
 
+from .chordal import chordal_headings
 from .factorisation import BandedLowRankFactor, DenseFactor, HessianLayout, SparseFactor
 from .residuals import (StepFrames, StepInformation, odometry_jacobian_blocks, odometry_residuals,
                         odometry_second_order_blocks, odometry_sqrt_information, poses_from_vector)
@@ -54,6 +57,7 @@ __all__ = [
     "StepFrames",
     "StepInformation",
     "SPARSE_ABOVE_DIMENSION",
+    "chordal_headings",
     "odometry_sqrt_information",
     "odometry_residuals",
     "odometry_jacobian_blocks",

@@ -9,8 +9,10 @@ eq. 3, 13-14). For a partition T the energy over the free poses is
 minimiser P* is found by damped Newton steps with analytic derivatives
 (:class:`Linearisation`); the Gauss-Newton Hessian H = J^T W J + H_T at P*,
 factorised with the structure of :mod:`ptm.pose_graph.factorisation`,
-defines the Laplace proposal N(P*, H^-1). Dead reckoning
-(:func:`ptm.se2.dead_reckoning`) is the natural start.
+defines the Laplace proposal N(P*, H^-1). The starts are dead reckoning
+(:func:`ptm.se2.dead_reckoning`) and two corrections of it that depend on the
+partition alone: the chordal relaxation's headings (:meth:`PoseGraph.chordal_start`)
+and the dead-reckoned headings with aligned positions (:meth:`PoseGraph.aligned_start`).
 
     >>> import numpy as np
     >>> from ptm.pose_graph import odometry_sqrt_information
@@ -33,6 +35,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from .. import se2
+from .chordal import chordal_headings
 from .factorisation import BandedLowRankFactor, HessianLayout, SparseFactor
 from .residuals import StepFrames, StepInformation, poses_from_vector
 from .topology import TopologyHessian
@@ -202,15 +205,29 @@ class PoseGraph:
         return se2.dead_reckoning(self.odometry)[1:].ravel()
 
     def aligned_start(self, partition) -> np.ndarray:
-        """Dead reckoning with the positions moved to the minimum of E over positions, the headings held
-        at dead reckoning: with the headings fixed, the residuals are linear in the positions and the
-        ties quadratic, so this is one linear (sparse) solve. A start that depends on the partition only."""
+        """Dead reckoning with the positions moved to their optimum given the dead-reckoned headings
+        (:meth:`positions_given_headings`). A start that depends on the partition only."""
+        return self.positions_given_headings(self._dead_reckoning, partition)
+
+    def chordal_start(self, partition) -> np.ndarray:
+        """The headings of the chordal relaxation (:func:`ptm.pose_graph.chordal.chordal_headings`) and the
+        positions at their optimum given those headings (:meth:`positions_given_headings`): two sparse
+        linear solves, a start that depends on the partition only."""
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
-        point = self.linearise(self._dead_reckoning, topology)
-        start = point.x.copy()
-        start[self.layout.positions] -= scipy.sparse.linalg.spsolve(
+        state = self._dead_reckoning.copy()
+        state[2::3] = chordal_headings(self.odometry, self.information, topology)
+        return self.positions_given_headings(state, topology)
+
+    def positions_given_headings(self, x, partition) -> np.ndarray:
+        """``x`` with the positions moved to the minimum of E over positions, its headings held: with the
+        headings fixed, the residuals are linear in the positions and the ties quadratic, so this is one
+        Newton step in the positions (one sparse solve)."""
+        topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
+        point = self.linearise(x, topology)
+        state = point.x.copy()
+        state[self.layout.positions] -= scipy.sparse.linalg.spsolve(
             self.layout.position_matrix(topology, point.gauss_newton), point.gradient[self.layout.positions])
-        return start
+        return state
 
     def topology(self, labels) -> TopologyHessian:
         """The topology term of the partition ``labels`` (canonical or not), for :meth:`energy` and :meth:`fit`."""
@@ -226,7 +243,7 @@ class PoseGraph:
         """E at the state ``x`` under ``partition`` (labels or a :meth:`topology`), and its derivatives."""
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
         x = np.asarray(x, dtype=float)
-        # both starts of every fit are linearised at dead reckoning, whose odometry part is remembered
+        # the aligned start is linearised at dead reckoning, whose odometry part is remembered
         at_dead_reckoning = self._at_dead_reckoning if np.array_equal(x, self._dead_reckoning) else None
         return Linearisation(self, x, topology, at_dead_reckoning)
 

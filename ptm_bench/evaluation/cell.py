@@ -133,6 +133,7 @@ def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, di
             sigma_topology=used["sigma_topology"], penalty_radius=used["penalty_radius"],
             max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
             sampling_coordinates=odometry["sampling_coordinates"], penalty_proposal=odometry["penalty_proposal"],
+            fit_starts=odometry["fit_starts"],
         ))
         if odometry["tie_normaliser"]:
             margin = tie_area_margin(dataset.meta)

@@ -59,6 +59,7 @@ ESTIMATES = ("frequency", "renormalised", "auto")  # ptm.sampler.ESTIMATES
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
 SAMPLING_COORDINATES = ("increments", "poses")  # ptm.odometry.SAMPLING_COORDINATES (parsing imports no inference)
 PENALTY_PROPOSALS = ("mode", "subspace")  # ptm.odometry.PENALTY_PROPOSALS
+FIT_STARTS = ("chordal", "aligned")  # ptm.odometry.FIT_STARTS
 APPEARANCE_MODELS = ("joint", "independent")
 APPEARANCE_PRIOR_MEANS = ("global", "run")
 WORLD_GENERATORS = ("corridor_grid",)
@@ -151,6 +152,11 @@ DEFAULTS = {
         # Laplace fit of E + Pen over all poses; "subspace": from a fit over the penalised detections'
         # positions only, the other poses following linearly (docs/model.md §3.3). Committed results pin "subspace".
         "penalty_proposal": "mode",
+        # the fixed starts whose lower converged minimum is the Laplace mode P* (docs/model.md §3.3, "Which
+        # minimum is P*"): "chordal" (the default), the chordal relaxation's headings and dead reckoning;
+        # "aligned", dead reckoning with and without its positions aligned (the rule until 2026-12-06), which on a
+        # 208-detection grid left the true partition's fit 862 nats above its minimum. Committed results pin it.
+        "fit_starts": "chordal",
     },
     "appearance": {
         # "independent": the paper's per-component model (the default: the better of the two in the predictive
@@ -315,7 +321,8 @@ _ADDED_KEYS = {("odometry", "tie_normaliser"): False, ("odometry", "sampling_coo
                ("inference", "estimate"): "frequency", ("inference", "warm_up"): "guided",
                ("appearance", "outliers"): False, ("appearance", "max_outlier_share"): 0.5,
                ("odometry", "tie_area"): "bounding_box", ("inference", "unscreened_share"): 0.0,
-               ("inference", "sampler_stream"): 0, ("inference", "map_window"): "none"}
+               ("inference", "sampler_stream"): 0, ("inference", "map_window"): "none",
+               ("odometry", "fit_starts"): "aligned"}
 #: Keys that act only when another key of their section is true: left out of a cell's definition when it is
 #: false, so that changing their default does not make the cells that switch them off stale.
 _DEPENDENT_KEYS = {("appearance", "max_outlier_share"): "outliers", ("odometry", "tie_area"): "tie_normaliser"}
@@ -389,6 +396,7 @@ def _validated_variant(variant, sections: dict, source: str) -> dict:
                   f"{where} odometry.sampling_coordinates", source)
     _check_choice(merged["odometry"]["penalty_proposal"], PENALTY_PROPOSALS, f"{where} odometry.penalty_proposal",
                   source)
+    _check_choice(merged["odometry"]["fit_starts"], FIT_STARTS, f"{where} odometry.fit_starts", source)
     _check_choice(merged["appearance"]["evidence"], EVIDENCE_FORMS, f"{where} appearance.evidence", source)
     _check_choice(merged["appearance"]["model"], APPEARANCE_MODELS, f"{where} appearance.model", source)
     _check_choice(merged["appearance"]["prior_mean"], APPEARANCE_PRIOR_MEANS, f"{where} appearance.prior_mean", source)

@@ -62,7 +62,8 @@ def calibrated_mapper(dataset: ptm.Dataset, held_out: Sequence[ptm.Dataset], mod
                                        used["penalty_radius"], settings["max_penalty"],
                                        n_importance=settings["n_importance"], seed=seed,
                                        sampling_coordinates=settings["sampling_coordinates"],
-                                       penalty_proposal=settings["penalty_proposal"]))
+                                       penalty_proposal=settings["penalty_proposal"],
+                                       fit_starts=settings["fit_starts"]))
         if settings["tie_normaliser"]:
             margin = calibration.tie_area_margin(dataset.meta)
             built.append(ptm.DeadReckonedTieNormaliser(used["sigma_topology"], margin, settings["tie_area"]))

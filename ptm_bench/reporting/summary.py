@@ -514,14 +514,16 @@ def _modes(experiment: Experiment, row, dataset, topologies) -> list | None:
     for a variant without an odometry model (a baseline, appearance alone) or a dataset without odometry.
 
     The mode does not depend on the landmark-density penalty, so the model needs only the variant's
-    ``sigma_xy``/``sigma_theta`` (used where the dataset has no ``odometry_cov``) and the row's ``sigma_topology``.
+    ``sigma_xy``/``sigma_theta`` (used where the dataset has no ``odometry_cov``), its ``fit_starts`` and the
+    row's ``sigma_topology``.
     """
     variant = next((variant for variant in experiment.variants if variant["name"] == row["variant"]), None)
     if variant is None or "odometry" not in variant["models"] or dataset.odometry is None:
         return None
     settings = variant["odometry"]
     term = ptm.OdometryModel(sigma_xy=settings["sigma_xy"], sigma_theta=settings["sigma_theta"],
-                             sigma_topology=float(row["sigma_topology"])).bind(dataset)
+                             sigma_topology=float(row["sigma_topology"]),
+                             fit_starts=settings["fit_starts"]).bind(dataset)
     modes = []
     for labels in topologies:
         try:
