@@ -44,13 +44,17 @@ def corridor_grid_dataset(n, side=10, spacing=3.0, seed=0):
     cells = np.array(cells)
     headings = np.concatenate([[0.0], np.arctan2(*(cells[1:] - cells[:-1]).T[::-1])])
     poses = np.column_stack([spacing * cells, wrap(headings)])
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    delta = current[:, :2] - previous[:, :2]
-    odometry = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                                wrap(current[:, 2] - previous[:, 2])])
+    odometry = relative_poses(poses[:-1], poses[1:])
     odometry += odometry_rng.normal(0.0, [SIGMA_XY, SIGMA_XY, SIGMA_THETA], size=odometry.shape)
     return ptm.Dataset(odometry=odometry, labels=cells[:, 0] * side + cells[:, 1], true_poses=poses)
+
+
+def relative_poses(frames, poses):
+    """Each of ``poses`` (M, 3) in the frame of the matching row of ``frames``, its heading wrapped."""
+    cos, sin = np.cos(frames[:, 2]), np.sin(frames[:, 2])
+    delta = poses[:, :2] - frames[:, :2]
+    return np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
+                            wrap(poses[:, 2] - frames[:, 2])])
 
 
 def model(seed=0):
@@ -161,11 +165,7 @@ def test_the_chordal_headings_are_exact_where_the_odometry_is():
     # the true poses, so the relaxation's least-squares solution is theirs and its headings are exact.
     dataset = corridor_grid_dataset(60, seed=4)
     poses = dataset.true_poses
-    previous, current = poses[:-1], poses[1:]
-    cos, sin = np.cos(previous[:, 2]), np.sin(previous[:, 2])
-    delta = current[:, :2] - previous[:, :2]
-    exact = np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                             wrap(current[:, 2] - previous[:, 2])])
+    exact = relative_poses(poses[:-1], poses[1:])
     graph = model().bind(ptm.Dataset(odometry=exact)).graph
     headings = ptm.pose_graph.chordal_headings(exact, graph.information, graph.topology(dataset.labels))
     np.testing.assert_allclose(wrap(headings - poses[1:, 2]), 0.0, atol=1e-9)
@@ -183,10 +183,7 @@ def test_unknown_fit_starts_are_refused():
 
 def in_frame_of_the_first(poses):
     """The free poses 1..N-1 of ``poses`` (N, 3) in the frame of pose 0, flattened: a state vector."""
-    cos, sin = np.cos(poses[0, 2]), np.sin(poses[0, 2])
-    delta = poses[1:, :2] - poses[0, :2]
-    return np.column_stack([cos * delta[:, 0] + sin * delta[:, 1], -sin * delta[:, 0] + cos * delta[:, 1],
-                            wrap(poses[1:, 2] - poses[0, 2])]).ravel()
+    return relative_poses(np.broadcast_to(poses[0], poses[1:].shape), poses[1:]).ravel()
 
 
 def test_the_chordal_start_reaches_the_minimum_that_dead_reckoning_misses_on_a_208_detection_run():
