@@ -176,9 +176,13 @@ def test_the_chordal_headings_are_exact_where_the_odometry_is():
     assert np.abs(wrap(relaxed - poses[1:, 2])).mean() < np.abs(wrap(dead_reckoned - poses[1:, 2])).mean()
 
 
-def test_unknown_fit_starts_are_refused():
+def test_unknown_fit_starts_are_refused_and_the_harness_lists_the_same_rules():
+    from ptm_bench.evaluation import experiment  # it lists them itself: parsing a config imports no inference
+
     with pytest.raises(ValueError, match="fit_starts must be one of"):
         ptm.OdometryModel(fit_starts="warm")
+    assert set(experiment.FIT_STARTS) == set(ptm.odometry.FIT_STARTS)
+    assert experiment.DEFAULTS["odometry"]["fit_starts"] == ptm.OdometryModel().fit_starts
 
 
 def in_frame_of_the_first(poses):

@@ -14,8 +14,8 @@ with isotropic weights w_xy,k = sqrt(mean of the translation information's diago
 sqrt(Sigma_k^-1 [theta, theta]); pose 0 is fixed at q_0 = (1, 0), t_0 = 0. The least-squares solution is one
 sparse solve of 4(N-1) unknowns, and theta_j = atan2(q_j). Where the loops of T are consistent the
 relaxation is nearly tight, so the headings it gives already bend the dead-reckoned drift the way the
-closures ask; from dead reckoning, a Newton fit spends most of its iterations doing that (at 208 detections
-of a corridor grid the fit from dead reckoning stopped in a minimum 1 251 nats above the one from here).
+closures ask; from dead reckoning, a Newton fit spends most of its iterations doing that (on a 208-detection
+corridor grid the true partition's fit from dead reckoning stopped at E = 898.7, from here at 36.3).
 
     >>> import numpy as np
     >>> from ptm.pose_graph import PoseGraph, odometry_sqrt_information
