@@ -1,4 +1,4 @@
-"""``import ptm`` stays light: numpy and scipy only, the heavy packages only inside the functions that need them.
+"""``import ptm`` stays light: numpy, scipy and threadpoolctl only, the heavy packages only inside the functions that need them.
 
 The library is used on robots and in sweep workers; loading MuJoCo, OpenCV,
 pandas, matplotlib or ArviZ with it would cost seconds per process and tie

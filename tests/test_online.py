@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 import pytest
+import threadpoolctl
 
 import ptm
 import ptm.online
@@ -246,6 +247,34 @@ def test_diagnostics_give_ess_resamplings_and_latency_per_detection():
     assert diagnostics["n_distinct"] == len(result)
 
 
+def blas_thread_counts() -> dict[str, int]:
+    return {library["filepath"]: library["num_threads"] for library in threadpoolctl.threadpool_info()
+            if library["user_api"] == "blas"}
+
+
+@pytest.mark.parametrize("threads", [1, 2, None])
+def test_an_update_runs_under_the_blas_thread_limit_and_restores_the_process_setting(threads):
+    process, seen = blas_thread_counts(), []
+
+    def prior_of(n):  # called in every update: records the thread counts there
+        seen.append(set(blas_thread_counts().values()))
+        return ptm.PoissonPrior(2.0)
+
+    mapper = ptm.OnlineMapper(prior_of, [APPEARANCE], particles=4, seed=0, blas_threads=threads)
+    mapper.add(signature=[0.3, 0.1])
+    mapper.add(signature=[0.31, 0.1])
+    expected = {threads} if threads else set(process.values())
+    assert seen == [expected, expected]
+    assert blas_thread_counts() == process
+
+
+def test_the_thread_limit_leaves_the_ptm_as_it_was():
+    """One BLAS thread or the process's own: the same seed gives the same particles."""
+    one, default = small_run(seed=3, blas_threads=1), small_run(seed=3, blas_threads=None)
+    np.testing.assert_array_equal(one.partitions, default.partitions)
+    np.testing.assert_allclose(one.probabilities, default.probabilities, rtol=1e-12)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_systematic_resampling_copies_each_particle_its_share(seed):
     log_weights = np.array([math.log(0.5), math.log(0.25), math.log(0.25), -math.inf])  # P = 4: 2, 1, 1 and 0 copies
@@ -311,6 +340,7 @@ def test_odometry_that_starts_late_is_refused():
     ({"resample_below": 1.5}, r"resample_below must be a number in \[0, 1\]"),
     ({"screen": "often"}, r"screen must be a number in \[0, 1\]"),
     ({"reallocation_window": 2.5}, "reallocation_window must be an integer >= 0"),
+    ({"blas_threads": 0}, "blas_threads must be an integer >= 1"),
 ])
 def test_bad_settings_are_refused_by_name(options, message):
     with pytest.raises(ValueError, match=message):
