@@ -72,7 +72,7 @@ from .result import PTM
 from .sampler import MoveMixture, default_moves
 from .surrogate import OdometrySurrogate
 
-__all__ = ["OnlineMapper", "incremental_log_weight", "systematic_resample"]
+__all__ = ["OnlineMapper", "incremental_log_weight", "smc_start", "systematic_resample"]
 
 #: The surrogate's weight where it screens the rejuvenation's moves: whole, because a particle takes only a
 #: few steps per detection and each screened-out proposal saves a Laplace fit (over a 116-detection grid, at
@@ -170,6 +170,21 @@ class OnlineMapper:
             self._update(*self._grown(signature, odometry, odometry_cov))
         self._latency.append(time.perf_counter() - started)
         return self.result()
+
+    def extend(self, dataset, each=None) -> PTM:
+        """:meth:`add` every detection of ``dataset`` in order (its signatures, odometry rows and covariances,
+        those it has); ``each(n, ptm)`` after every update. Returns the PTM after the last detection."""
+        result = self.result() if self.posterior is not None else None
+        for index in range(dataset.n):
+            row = index - 1
+            with_odometry = dataset.odometry is not None and index > 0
+            result = self.add(
+                signature=None if dataset.signatures is None else dataset.signatures[index],
+                odometry=dataset.odometry[row] if with_odometry else None,
+                odometry_cov=dataset.odometry_cov[row] if with_odometry and dataset.odometry_cov is not None else None)
+            if each is not None:
+                each(self.n, result)
+        return result
 
     def _update(self, signatures, odometry_rows, covariances) -> None:
         """Steps 1-3 for the detections ``signatures``, ``odometry_rows``, ``covariances`` (checked, the new one
@@ -313,6 +328,35 @@ class OnlineMapper:
                 raise ValueError(f"odometry_cov must be a 3 x 3 matrix, got shape {covariance.shape}")
             covariances = covariance[None] if covariances is None else np.concatenate([covariances, covariance[None]])
         return signatures, np.vstack([rows, row]), covariances
+
+
+def smc_start(posterior, particles: int, rng) -> tuple[int, ...]:
+    """A start for a chain of :func:`ptm.mcmc` (``smc_start``): the posterior's detections fed one by one to an
+    :class:`OnlineMapper` of ``particles`` particles with the posterior's prior and models (seeded from ``rng``),
+    and a partition drawn from its final particles by their weights.
+
+    The pass builds the partition the way the run was walked: each detection joins one of the places so far
+    or opens one, and the block move realigns the last ones, so a chain starts near the posterior's bulk even
+    where the cheap warm-up (:func:`ptm.sampler.warm_up_start`) leaves it hundreds of nats below, in a
+    partition no single move leaves (docs/model.md §3.4, "Starts").
+    """
+    dataset = posterior.dataset
+    if dataset.signatures is None and dataset.odometry is None:
+        raise ValueError("an SMC start needs the detections' signatures or odometry: this dataset has neither")
+    models = [_unbound(term) for term in posterior.terms]
+    mapper = OnlineMapper(posterior.prior, models, particles=particles, seed=int(rng.integers(2**63)))
+    result = mapper.extend(dataset)
+    return tuple(int(label) for label in result.partitions[rng.choice(len(result), p=result.probabilities)])
+
+
+def _unbound(term):
+    """The model a posterior's term was bound from (or the term, where it binds anew itself)."""
+    if hasattr(term, "model"):
+        return term.model
+    if hasattr(term, "bind"):
+        return term
+    raise ValueError(f"{term!r} cannot be bound to the first detections of the run: an SMC start needs the models "
+                     "(or terms with a model or bind)")
 
 
 def incremental_log_weight(log_prob_extended: float, log_prob_before: float, log_q: float) -> float:

@@ -48,7 +48,7 @@ from .partitions import Partition
 from .result import PTM
 from .surrogate import OdometrySurrogate
 
-__all__ = ["mcmc", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
+__all__ = ["mcmc", "chain_start", "checked_smc_start", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
            "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder", "run_chains",
            "ESTIMATES", "checked_estimate"]
 
@@ -106,7 +106,7 @@ def guided_options(posterior, delayed_acceptance: bool = True, map_window: bool 
 
 def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, chains: int = 1,
          init=None, moves=None, delayed_acceptance=False, warm_up: int = 0, max_doublings: int = 0,
-         estimate: str = "frequency", unscreened_share: float = 0.0) -> PTM:
+         estimate: str = "frequency", unscreened_share: float = 0.0, smc_start: int = 0) -> PTM:
     """Sample the posterior over topologies; return the pooled histogram as a PTM.
 
     Parameters
@@ -146,6 +146,9 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     unscreened_share : float in [0, 1]
         With a surrogate as ``delayed_acceptance``, the share of steps that skip its screening and accept on
         the exact ratio (:class:`MoveMixture`); ``diagnostics["unscreened_steps"]`` counts them.
+    smc_start : int
+        Particles of a sequential Monte Carlo pass over the detections that gives each chain its start, from
+        the chain's own stream (:func:`ptm.online.smc_start`; 0: none). Instead of ``init`` and ``warm_up``.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -154,16 +157,15 @@ def mcmc(posterior, n_samples: int, burn_in: int = 0, thin: int = 1, seed=None, 
     warm_up = count("warm_up", warm_up, minimum=0)
     max_doublings = count("max_doublings", max_doublings, minimum=0)
     estimate = checked_estimate(estimate)
+    smc_start = checked_smc_start(smc_start, init, warm_up)
     mixture = MoveMixture(moves if moves is not None else default_moves(), unscreened_share)
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
     started = time.perf_counter()
     runners = []
     for chain, chain_seed in enumerate(root.spawn(chains)):
         rng = np.random.default_rng(chain_seed)
-        labels = start_labels(posterior, init, chain, rng)
-        if warm_up:
-            surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
-            labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
+        labels = chain_start(posterior, init, chain, rng, warm_up, surrogate, smc_start)
         runners.append(_Chain(posterior, initial_state(posterior, labels), rng, mixture, delayed_acceptance))
     recorder, doublings = run_chains(runners, n_samples, burn_in, thin, max_doublings, estimate)
     wall = time.perf_counter() - started
@@ -516,6 +518,27 @@ class SampleRecorder:
                         self._weights(counts, estimate), "chain").coassignment() for counts in self.chain_counts]
         return float(max(np.abs(first - second).max()
                          for index, first in enumerate(matrices) for second in matrices[index + 1:]))
+
+
+def chain_start(posterior, init, chain: int, rng, warm_up: int = 0, surrogate=None,
+                smc_particles: int = 0) -> tuple[int, ...]:
+    """Where chain number ``chain`` starts (shared by :func:`mcmc` and :func:`ptm.tempered_mcmc`): a draw from an
+    SMC pass of ``smc_particles`` particles (:func:`ptm.online.smc_start`), or else :func:`start_labels` followed
+    by ``warm_up`` steps of :func:`warm_up_start`."""
+    if smc_particles:
+        from .online import smc_start  # the online mapper's rejuvenation is built from this module's moves
+
+        return smc_start(posterior, smc_particles, rng)
+    labels = start_labels(posterior, init, chain, rng)
+    return warm_up_start(posterior, labels, warm_up, rng, surrogate) if warm_up else labels
+
+
+def checked_smc_start(smc_start, init, warm_up: int) -> int:
+    """``smc_start`` as a particle count >= 0; refused beside ``init`` or ``warm_up``, which it replaces."""
+    smc_start = count("smc_start", smc_start, minimum=0)
+    if smc_start and (init is not None or warm_up):
+        raise ValueError("smc_start replaces init and warm_up: give one way to start the chains, not both")
+    return smc_start
 
 
 def start_labels(posterior, init, chain: int, rng) -> tuple[int, ...]:

@@ -29,8 +29,8 @@ import numpy as np
 
 from ._validation import count
 from .moves import initial_state
-from .sampler import (MoveMixture, checked_estimate, default_moves, run_chains, screening_diagnostics, start_labels,
-                      warm_up_start)
+from .sampler import (MoveMixture, chain_start, checked_estimate, checked_smc_start, default_moves, run_chains,
+                      screening_diagnostics)
 
 __all__ = ["tempered_mcmc"]
 
@@ -38,7 +38,7 @@ __all__ = ["tempered_mcmc"]
 def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2), burn_in: int = 0,
                   thin: int = 1, swap_interval: int = 10, seed=None, init=None, moves=None,
                   delayed_acceptance=False, chains: int = 1, warm_up: int = 0, max_doublings: int = 0,
-                  estimate: str = "frequency", unscreened_share: float = 0.0):
+                  estimate: str = "frequency", unscreened_share: float = 0.0, smc_start: int = 0):
     """Sample with a ladder of tempered replicas; return the beta = 1 chain's histogram as a PTM.
 
     ``temperatures`` are inverse temperatures, strictly decreasing from 1.
@@ -52,7 +52,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     applies to every replica. ``max_doublings`` runs ladders whose beta = 1
     chains disagree on, twice as long each time, ``estimate`` turns the beta = 1 chains into
     probabilities, and ``unscreened_share`` skips the screening in that share of each replica's steps, as in
-    :func:`ptm.mcmc`.
+    :func:`ptm.mcmc`; so does ``smc_start``, which starts every replica from its own SMC pass.
     """
     n_samples = count("n_samples", n_samples, minimum=1)
     burn_in = count("burn_in", burn_in, minimum=0)
@@ -62,6 +62,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
     warm_up = count("warm_up", warm_up, minimum=0)
     max_doublings = count("max_doublings", max_doublings, minimum=0)
     estimate = checked_estimate(estimate)
+    smc_start = checked_smc_start(smc_start, init, warm_up)
     betas = np.asarray(temperatures, dtype=float)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, got {temperatures!r}")
@@ -79,9 +80,7 @@ def tempered_mcmc(posterior, n_samples: int, temperatures=(1.0, 0.6, 0.35, 0.2),
         surrogate = None if isinstance(delayed_acceptance, bool) else delayed_acceptance
         states = []
         for index, rng in enumerate(rngs):
-            labels = start_labels(posterior, init, chain + index, rng)
-            if warm_up:
-                labels = warm_up_start(posterior, labels, warm_up, rng, surrogate)
+            labels = chain_start(posterior, init, chain + index, rng, warm_up, surrogate, smc_start)
             states.append(initial_state(posterior, labels))
         ladders.append(_Ladder(posterior, betas, states, rngs, np.random.default_rng(replica_seeds[-1]), mixtures,
                                delayed_acceptance, swap_interval, swaps))

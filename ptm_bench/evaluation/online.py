@@ -97,14 +97,7 @@ def replay(dataset: ptm.Dataset, mapper: ptm.OnlineMapper,
     uses_appearance = any(isinstance(model, (ptm.AppearanceModel, ptm.JointAppearanceModel))
                           for model in mapper.models)
     uses_odometry = any(isinstance(model, ptm.OdometryModel) for model in mapper.models)
-    result = None
-    for index in range(dataset.n):
-        row = index - 1
-        with_odometry = uses_odometry and index > 0
-        result = mapper.add(
-            signature=dataset.signatures[index] if uses_appearance else None,
-            odometry=dataset.odometry[row] if with_odometry else None,
-            odometry_cov=dataset.odometry_cov[row] if with_odometry and dataset.odometry_cov is not None else None)
-        if each is not None:
-            each(index + 1, result)
-    return result
+    fed = ptm.Dataset(signatures=dataset.signatures if uses_appearance else None,
+                      odometry=dataset.odometry if uses_odometry else None,
+                      odometry_cov=dataset.odometry_cov if uses_odometry else None)
+    return mapper.extend(fed, each)
