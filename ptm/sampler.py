@@ -48,9 +48,9 @@ from .partitions import Partition
 from .result import PTM
 from .surrogate import OdometrySurrogate
 
-__all__ = ["mcmc", "chain_start", "checked_smc_start", "default_moves", "guided_moves", "guided_options", "warm_up_start", "metropolis_step",
-           "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture", "SampleRecorder", "run_chains",
-           "ESTIMATES", "checked_estimate"]
+__all__ = ["mcmc", "chain_start", "checked_smc_start", "default_moves", "guided_moves", "guided_options",
+           "warm_up_start", "metropolis_step", "second_stage_log_ratio", "start_labels", "StepInfo", "MoveMixture",
+           "SampleRecorder", "run_chains", "ESTIMATES", "checked_estimate"]
 
 _SMALLEST = 5e-324  # replaces a uniform draw of exactly 0 before taking its log
 #: Warm-up steps per detection of :func:`guided_options` (:func:`warm_up_start`).

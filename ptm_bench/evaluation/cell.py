@@ -228,20 +228,19 @@ def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> d
     otherwise ``"guided"`` always warms up (docs/model.md §3.4), the others with ``inference.warm_up = "all"``. With
     odometry, ``inference.map_window`` = "default" or "all" adds the map-steered window to the default moves
     (:func:`ptm.sampler.default_moves`), and "all" steers the guided moves' window by the map too."""
-    start = {"unscreened_share": inference["unscreened_share"]}
-    if inference["warm_up"] == "smc":
-        start.update(warm_up=0, smc_start=SMC_START_PARTICLES)
+    unscreened = {"unscreened_share": inference["unscreened_share"]}
+    smc = {"warm_up": 0, "smc_start": SMC_START_PARTICLES} if inference["warm_up"] == "smc" else {}
     map_window = inference["map_window"]
     if moves == "guided":
         return {**ptm.sampler.guided_options(posterior, inference["delayed_acceptance"], map_window == "all"),
-                **start}
+                **unscreened, **smc}
     chosen = [(ptm.moves.SplitMerge(), 1.0)] if moves == "paper" else None
     steered = moves == "default" and map_window in ("default", "all")
     surrogate = ptm.surrogate.OdometrySurrogate(posterior) if steered else None
     if surrogate is not None and surrogate.terms:  # without a map, the default moves as they were
         chosen = ptm.sampler.default_moves(surrogate)
     warm_up = ptm.sampler.WARM_UP_PER_DETECTION * posterior.n if inference["warm_up"] == "all" else 0
-    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up, **start}
+    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up, **unscreened, **smc}
 
 
 def disagreement(diagnostics: dict) -> str:
