@@ -13,13 +13,16 @@ detection n + 1 arrives (0-based index n):
 
    The proposal is the new detection's conditional under pi_{n+1} (the "locally optimal" one), with a
    cheap screen where the global (odometry) terms are expensive: every option gets the screened value
-   cheap_{n+1}(T (+) b) + global_{n+1}(T (+) new) + s(b), with s(b) the odometry surrogate's prediction of
-   the change from opening a new place to joining b (:mod:`ptm.surrogate`, a merge predicted from the map
-   of T (+) new; for a set ``FAR_OPTION_NATS`` below the best on a cheaper estimate, that estimate); the
-   options whose screened probability is at least ``screen`` (and the new place) get their exact value log
-   pi~_{n+1}, the others keep the screened one, and q is the normalised exponential of these values. Where
-   every option is exact (always without global terms) the incremental weight is the predictive probability
-   of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same for every choice; otherwise the
+   cheap_{n+1}(T (+) b) + g + s(b), with g = global_n(T) + o(T) the particle's value so far plus the
+   surrogate's change from opening a place (a leaf of the pose graph: exact in the Laplace value, plus the
+   new detection's pairs' penalty; :meth:`ptm.surrogate.OdometrySurrogate.opened_place_change`) and s(b) its
+   prediction of the change from opening a new place to joining b (:mod:`ptm.surrogate`, a merge predicted
+   from the map of T (+) new; for a set ``FAR_OPTION_NATS`` below the best on a cheaper estimate, that
+   estimate). The options whose screened probability is at least ``screen`` get their exact value log
+   pi~_{n+1} (the new place first, whose exact value then stands for g in the joins'), the others keep the
+   screened one, and q is the normalised exponential of these values: at a revisit the unlikely new place
+   costs no importance sampling. Where every option is exact (always without global terms) the incremental
+   weight is the predictive probability of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same for every choice; otherwise the
    chosen option is evaluated exactly if it was not, so the weights use the true posterior whatever the
    screen: the particles target pi_{n+1} exactly (as P grows).
 2. *Resampling.* With normalised weights W^p, the effective sample size ESS = 1 / sum_p (W^p)^2; below
@@ -236,7 +239,8 @@ class OnlineMapper:
         for index, (state, log_weight) in enumerate(zip(self._states, self._log_weights)):
             options = options_of.get(state.partition)
             if options is None:
-                options = options_of[state.partition] = _Options.of(posterior, surrogate, state.partition, self.screen)
+                options = options_of[state.partition] = _Options.of(posterior, surrogate, state.partition, self.screen,
+                                                                    state.log_global)
             if log_weight == -math.inf or not np.isfinite(options.log_q).any():
                 pick = len(options.candidates) - 1  # no mass anywhere: open a new place, weight 0
                 extended = initial_state(posterior, options.candidates[pick])
@@ -386,24 +390,35 @@ class _Options:
         self._states = {}
 
     @classmethod
-    def of(cls, posterior, surrogate, partition: Partition, screen: float) -> _Options:
+    def of(cls, posterior, surrogate, partition: Partition, screen: float, log_global_before: float) -> _Options:
         new = partition.n
         blocks = partition.blocks
         candidates = [Partition(blocks[:j] + (block + (new,),) + blocks[j + 1:]) for j, block in enumerate(blocks)]
         candidates.append(Partition(blocks + ((new,),)))
-        values = np.array([posterior.cheap_log_prob(candidate) for candidate in candidates])
+        scores = np.array([posterior.block_score(block) for block in blocks])
+        joined = np.array([posterior.block_score(block + (new,)) for block in blocks])
+        log_prior = posterior.log_prior_by_size
+        # cheap_log_prob of each candidate, from the sets' scores: one changed set per candidate
+        values = scores.sum() + np.append(log_prior[len(blocks)] + joined - scores,
+                                          log_prior[len(blocks) + 1] + posterior.block_score((new,)))
         if posterior.has_global_terms:
             alone = candidates[-1]
-            base = posterior.global_log_prob(alone)
             predicted = np.append(surrogate.join_estimates(alone, new), 0.0)
             rough = values + predicted
             for index in np.flatnonzero(rough[:-1] >= rough.max() - FAR_OPTION_NATS):
                 predicted[index] = surrogate.predicted_change(alone, [blocks[index], (new,)], [blocks[index] + (new,)])
+            opened = surrogate.opened_place_change(alone)
+            approximate = opened is not None and math.isfinite(log_global_before + opened)
+            base = log_global_before + opened if approximate else posterior.global_log_prob(alone)
             screened = values + base + predicted
-            evaluated = np.ones(len(candidates), dtype=bool)
+            likely = np.ones(len(candidates), dtype=bool)
             if math.isfinite(base) and np.all(np.isfinite(screened[:-1])):
-                evaluated = np.exp(screened - logsumexp(screened)) >= screen
-            for index in np.flatnonzero(evaluated[:-1]):  # the new place's screened value is exact
+                likely = np.exp(screened - logsumexp(screened)) >= screen
+            if approximate and likely[-1]:  # a likely new place: the joins' predictions start from its exact value
+                base = posterior.global_log_prob(alone)
+                screened = values + base + predicted
+                likely[:-1] |= not math.isfinite(base)
+            for index in np.flatnonzero(likely[:-1]):  # the new place's value is exact by now, or it is unlikely
                 screened[index] = values[index] + posterior.global_log_prob(candidates[index])
             values = screened
         total = logsumexp(values)

@@ -137,29 +137,38 @@ class MapEstimate:
         laplace_change, members, gain = tie
         n = len(self.labels)
         coordinates = (2 * members[:, None] + np.arange(2)).ravel()
-        first, second = _pairs(n)
+        coupling = self.covariance[:, coordinates]  # Cov(t, z): (2N, 2m)
+        weighted = coupling @ gain  # Cov(t, z) K
+        mean_shift = (weighted @ self.positions.ravel()[coordinates]).reshape(n, 2)  # each mean moves by minus this
+        # F_kl = Cov(t_k, z) K Cov(z, t_l) (2 x 2 blocks, F_lk = F_kl^T): a pair's covariance shrinks by
+        # F_ii + F_jj - F_ij - F_ji; only the diagonal blocks and the members' rows are needed
+        own_shift = np.einsum("kai,kbi->kab", weighted.reshape(n, 2, -1), coupling.reshape(n, 2, -1))
+        member_rows = (weighted[coordinates] @ coupling.T).reshape(len(members), 2, n, 2).transpose(0, 2, 1, 3)
         involved = np.zeros(n, dtype=bool)
         involved[members] = True
-        touched = np.flatnonzero(involved[first] | involved[second])  # the pairs with a member of the move
-        first, second = first[touched], second[touched]
-        coupling = self.covariance[:, coordinates].reshape(n, 2, -1)  # Cov(t_k, z): (N, 2, 2m)
-        pair_coupling = coupling[first] - coupling[second]  # Cov(t_i - t_j, z): (P, 2, 2m)
-        weighted = pair_coupling @ gain
-        separation_shift = weighted @ self.positions.ravel()[coordinates]
-        covariance_shift = np.einsum("pak,pbk->pab", weighted, pair_coupling)  # Cov(t_i - t_j, z) K Cov(z, .)
+        partners = np.arange(n)
+        keep = (~involved[None, :] | (partners[None, :] > members[:, None]))  # each pair with a member once
+        which_member, partner = np.nonzero(keep)
+        member = members[which_member]
+        first, second = np.minimum(member, partner), np.maximum(member, partner)
+        touched = _pair_indices(n)[first, second]  # the pairs with a member of the move
+        separation_shift = mean_shift[first] - mean_shift[second]
+        cross = member_rows[which_member, partner]
+        covariance_shift = own_shift[member] + own_shift[partner] - cross - cross.transpose(0, 2, 1)
         labels = self.labels.copy()
         for index, block in enumerate(added):
             labels[list(block)] = n + index
         apart_before = self.labels[first] != self.labels[second]
         apart_after = labels[first] != labels[second]
-        spread_squared = np.trace(self.separation_covariances[touched], axis1=1, axis2=2)
+        separation_covariances = self.separation_covariances[touched]
+        spread_squared = separation_covariances[:, 0, 0] + separation_covariances[:, 1, 1]
         shifted = ((np.einsum("pa,pa->p", separation_shift, separation_shift) > PAIR_TOLERANCE**2 * spread_squared)
                    | (np.abs(covariance_shift).max(axis=(1, 2)) > PAIR_TOLERANCE * spread_squared))
         recomputed = np.flatnonzero(apart_after & (shifted | ~apart_before))
         dropped = touched[apart_before & (shifted | ~apart_after)]
         penalty_change = float(np.sum(_pair_log_expectations(
             self.separations[touched[recomputed]] - separation_shift[recomputed],
-            self.separation_covariances[touched[recomputed]] - covariance_shift[recomputed],
+            separation_covariances[recomputed] - covariance_shift[recomputed],
             self.penalty_radius, self.max_penalty)) - np.sum(self.penalty_terms[dropped]))
         return float(laplace_change + penalty_change)
 
@@ -182,18 +191,19 @@ class MapEstimate:
     def _gaussian_tie(self, removed, added):
         """(log E_Q[exp(-1/2 z^T M z)], the detections of z (sorted), K = M (I + S M)^-1), or None where
         I + S M is not numerically positive definite (it is in exact arithmetic)."""
-        members = np.array(sorted(member for block in added for member in block), dtype=int)
-        where = {member: index for index, member in enumerate(members.tolist())}
+        members = np.sort(np.concatenate([np.asarray(block, dtype=int) for block in added]))
         laplacian = np.zeros((len(members), len(members)))
         for blocks, sign in ((added, 1.0), (removed, -1.0)):
             for block in blocks:
-                rows = [where[member] for member in block]
-                laplacian[np.ix_(rows, rows)] -= sign
+                rows = np.searchsorted(members, block)
+                laplacian[rows[:, None], rows] -= sign
                 laplacian[rows, rows] += sign * len(block)
-        precision = np.kron(laplacian / self.sigma_topology**2, np.eye(2))  # M
+        precision = np.zeros((2 * len(members), 2 * len(members)))  # M = L / sigma_T^2 on x and on y
+        precision[0::2, 0::2] = precision[1::2, 1::2] = laplacian / self.sigma_topology**2
         coordinates = (2 * members[:, None] + np.arange(2)).ravel()
         mean = self.positions.ravel()[coordinates]  # mu
-        system = np.eye(len(mean)) + self.covariance[np.ix_(coordinates, coordinates)] @ precision  # I + S M
+        system = self.covariance[np.ix_(coordinates, coordinates)] @ precision  # I + S M
+        system[np.diag_indices_from(system)] += 1.0
         sign, log_det = np.linalg.slogdet(system)
         if sign <= 0.0:
             return None
@@ -372,6 +382,7 @@ class OdometrySurrogate:
             raise ValueError(f"screening_trust must lie in (0, 1], got {screening_trust!r}")
         self.screening_trust = float(screening_trust)
         self.terms = [term for term in posterior.global_terms if isinstance(term, OdometryTerm)]
+        self._predicts_every_global_term = len(self.terms) == len(posterior.global_terms)
         self._estimates = BoundedCache(estimates_kept)
         self._gaussians = BoundedCache(OPEN_MAPS_KEPT)
         self._predictions = BoundedCache(predictions_kept)
@@ -396,6 +407,31 @@ class OdometrySurrogate:
                                for estimate in self.map_estimates(partition) if estimate is not None))
             self._seconds += time.perf_counter() - started
             self._predictions.put(key, change)
+        return change
+
+    def opened_place_change(self, partition: Partition) -> float | None:
+        """Predicted change of the global terms from the run without its last detection to ``partition``, where
+        that detection is a place of its own (the online mapper's new place, :mod:`ptm.online`); None where the
+        posterior has global terms other than odometry, -inf where a term has no Gaussian.
+
+        Held by its odometry row alone, the last detection is a leaf of the pose graph: the minimum of E is the
+        shorter run's with the leaf composed on (zero residual), and the Hessian gains the row's information
+        through a Jacobian of determinant 1 (the Schur complement of the leaf leaves H as it was), so the Laplace
+        value changes by exactly (3/2) log 2 pi + 1/2 log det Sigma_last. The penalty adds the leaf's pairs,
+        log E[exp(-f)] each as in :meth:`MapEstimate.predicted_change` (all of them in different sets).
+        """
+        if not self._predicts_every_global_term:
+            return None
+        last = partition.n - 1
+        if last < 1 or partition.labels[last] in partition.labels[:last]:
+            raise ValueError(f"the last detection of {partition} is not a place of its own")
+        change = 0.0
+        for term, estimate in zip(self.terms, self.map_estimates(partition)):
+            if estimate is None:
+                return -math.inf
+            _, log_det_whitening = np.linalg.slogdet(term.graph.sqrt_information[-1])  # -1/2 log det Sigma_last
+            pairs = _pair_indices(partition.n)[last, :last]
+            change += 1.5 * math.log(2.0 * math.pi) - log_det_whitening + float(np.sum(estimate.penalty_terms[pairs]))
         return change
 
     def join_estimates(self, partition: Partition, detection: int) -> np.ndarray:
