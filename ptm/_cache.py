@@ -43,6 +43,10 @@ class BoundedCache:
         if len(self._entries) > self.maxsize:
             self._entries.popitem(last=False)
 
+    def __contains__(self, key) -> bool:
+        """Whether ``key`` is cached (not counted as a lookup, and not moved to the end)."""
+        return key in self._entries
+
     def __len__(self) -> int:
         return len(self._entries)
 

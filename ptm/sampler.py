@@ -260,6 +260,9 @@ def metropolis_step(posterior, state, rng, move, inverse_temperature: float = 1.
     elif posterior.has_global_terms and delayed_acceptance:
         surrogate = None if delayed_acceptance is True else delayed_acceptance
         removed = [state.blocks[index] for index in proposal.removed]
+        if hasattr(surrogate, "screening_change_bound") and log_uniform >= log_ratio + inverse_temperature * (
+                surrogate.screening_change_bound(state.partition, removed, proposal.added)):
+            return state, StepInfo(True, False, True, False)  # out at an upper bound: out at the prediction too
         predicted = 0.0 if surrogate is None else surrogate.screening_change(state.partition, removed,
                                                                               proposal.added)
         screening_ratio = log_ratio + inverse_temperature * predicted

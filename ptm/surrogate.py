@@ -52,7 +52,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -95,6 +95,8 @@ class MapEstimate:
     sigma_topology: float
     penalty_radius: float
     max_penalty: float
+    given_back: np.ndarray  # (N,): minus the sum of each detection's penalty terms (>= 0)
+    _last_tie: list = field(default_factory=lambda: [None, None], compare=False, repr=False)  # [move, its tie]
 
     @property
     def log_likelihood(self) -> float:
@@ -119,8 +121,9 @@ class MapEstimate:
         penalty_terms = np.zeros(len(first))
         penalty_terms[apart] = _pair_log_expectations(separations[apart], separation_covariances[apart],
                                                       model.penalty_radius, model.max_penalty)
+        given_back = -(np.bincount(first, penalty_terms, term.n) + np.bincount(second, penalty_terms, term.n))
         return cls(labels, positions, covariance, separations, separation_covariances, penalty_terms, laplace,
-                   model.sigma_topology, model.penalty_radius, model.max_penalty)
+                   model.sigma_topology, model.penalty_radius, model.max_penalty, given_back)
 
     def predicted_change(self, removed, added) -> float:
         """s_T(T'): the predicted log P(O | T') - log P(O | T) when the sets ``removed`` are replaced by the
@@ -135,6 +138,8 @@ class MapEstimate:
         if tie is None:
             return 0.0
         laplace_change, members, gain = tie
+        if self.max_penalty == 0.0:
+            return float(laplace_change)
         n = len(self.labels)
         coordinates = (2 * members[:, None] + np.arange(2)).ravel()
         coupling = self.covariance[:, coordinates]  # Cov(t, z): (2N, 2m)
@@ -188,7 +193,30 @@ class MapEstimate:
         changes[others] = _tie_changes(self.separations[pairs], self.separation_covariances[pairs], self.sigma_topology)
         return changes
 
+    def predicted_change_bound(self, removed, added) -> float:
+        """An upper bound of :meth:`predicted_change` without the pairs' update: its Gaussian tie part plus every
+        penalty term of the pairs with a member of the move given back.
+
+        The penalty terms are <= 0 before and after (log E[exp(-f)], f >= 0), and the prediction drops only
+        terms of such pairs, so it gains at most these. A first stage that rejects the move at this bound
+        rejects it at the prediction too (:func:`ptm.sampler.metropolis_step`); the tie is kept for the
+        prediction that may follow.
+        """
+        tie = self._gaussian_tie(removed, added)
+        if tie is None:
+            return 0.0
+        laplace_change, members, _ = tie
+        return float(laplace_change + np.sum(self.given_back[members]))
+
     def _gaussian_tie(self, removed, added):
+        """The tie of the move (:meth:`_tie_of`), remembered for the last move asked about: a first stage asks
+        for its bound (:meth:`predicted_change_bound`), then for the prediction."""
+        move = (tuple(removed), tuple(added))
+        if self._last_tie[0] != move:
+            self._last_tie[:] = move, self._tie_of(removed, added)
+        return self._last_tie[1]
+
+    def _tie_of(self, removed, added):
         """(log E_Q[exp(-1/2 z^T M z)], the detections of z (sorted), K = M (I + S M)^-1), or None where
         I + S M is not numerically positive definite (it is in exact arithmetic)."""
         members = np.sort(np.concatenate([np.asarray(block, dtype=int) for block in added]))
@@ -388,6 +416,7 @@ class OdometrySurrogate:
         self._predictions = BoundedCache(predictions_kept)
         self._approximations = BoundedCache(predictions_kept)
         self._seconds = 0.0
+        self._bounds = 0
 
     def map_estimates(self, partition: Partition) -> list[MapEstimate | None]:
         """The map estimate of ``partition`` under each odometry term (memoised)."""
@@ -433,6 +462,15 @@ class OdometrySurrogate:
             pairs = _pair_indices(partition.n)[last, :last]
             change += 1.5 * math.log(2.0 * math.pi) - log_det_whitening + float(np.sum(estimate.penalty_terms[pairs]))
         return change
+
+    def screening_change_bound(self, partition: Partition, removed, added) -> float:
+        """An upper bound of :meth:`screening_change`, cheaper where the prediction is not memoised: ``screening_trust``
+        times the sum of :meth:`MapEstimate.predicted_change_bound` (the memoised prediction where there is one)."""
+        if (partition, tuple(added)) in self._predictions:
+            return self.screening_change(partition, removed, added)
+        self._bounds += 1
+        return self.screening_trust * float(sum(estimate.predicted_change_bound(removed, added)
+                                                for estimate in self.map_estimates(partition) if estimate is not None))
 
     def join_estimates(self, partition: Partition, detection: int) -> np.ndarray:
         """For each set of ``partition`` other than ``detection``'s own (a set of one), a cheap estimate of the
@@ -493,11 +531,13 @@ class OdometrySurrogate:
         return value
 
     def diagnostics(self) -> dict:
-        """Predictions made and reused, map estimates built, and the mean time of a prediction made [ms]."""
+        """Predictions made and reused, map estimates built, the mean time of a prediction made [ms], and the
+        bounds computed in their stead (:meth:`screening_change_bound`)."""
         made = self._predictions.misses
         return {
             "predictions": made + self._predictions.hits,
             "prediction_hit_rate": self._predictions.hit_rate,
             "map_estimates_built": self._estimates.misses,
             "prediction_ms_mean": 1e3 * self._seconds / made if made else math.nan,
+            "prediction_bounds": self._bounds,
         }
