@@ -1,8 +1,8 @@
 """``ptm-bench speed --section scale`` runs end to end on small grids (its full size is a benchmark, not a test).
 
 At ``--scale 0.2`` the agreement grids shrink to 3 x 3 and 4 x 4 (ten to twenty detections) and the online ones
-to 4 x 4 and 6 x 6: the time to agreement comes from the sampler's own doublings (``diag_doublings`` of the sweep cell), and
-the online mapper replays both runs, with a latency row per 20 updates.
+to 4 x 4, 6 x 6 and 7 x 7: the time to agreement comes from the sampler's own doublings (``diag_doublings`` of the sweep
+cell), and the online mapper replays the three runs, with a latency row per 20 updates.
 """
 
 import math
@@ -24,7 +24,7 @@ def test_the_scale_section_writes_every_metric_on_small_grids(tmp_path):
     rows = rows[rows["section"] == "scale"]
     online_runs = rows.loc[rows["metric"] == "online_map_ari", "n"].tolist()
     windows = rows.loc[rows["metric"] == "online_window_median_s", "n"].tolist()
-    assert len(online_runs) == 2 and windows == [end for n in sorted(online_runs) for end in range(20, n + 1, 20)]
+    assert len(online_runs) == 3 and windows == [end for n in online_runs for end in range(20, n + 1, 20)]
     rows = rows.drop_duplicates("metric", keep="last").set_index("metric")["value"]
     assert set(rows.index) == METRICS
     samples = rows["agreement_samples_per_chain"]

@@ -14,15 +14,14 @@ when 40 000 did not agree), ``agreement_wall_s`` (the sampler's wall time, every
 in that run).
 
 *Online mapper.* One run of a generated corridor grid (10 x 10 nodes, 4 extra loops, 60 % of the nodes places, world and
-run seed 0: 116 detections), and one of a 14 x 14 grid (208 detections of 113 places: how far past 200 the
-latency holds), at aliasing 0 and odometry noise 1, each replayed detection by detection
-through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The parameters are
-calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out run of a
-5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an
-online run does not know its own mean signature before it ends), the penalty radius from the held-out
-places, the tie from the detector's radius, and the prior rate, given to the mapper as a function of n,
-from the held-out places per detection. ``--scale`` scales every grid's side by sqrt(scale) (n is in the
-rows).
+run seed 0: 116 detections), one of a 14 x 14 grid (208 detections of 113 places) and one of a 16 x 16 grid (301
+detections of 154 places: how far past 200 the latency holds), at aliasing 0 and odometry noise 1, each replayed
+detection by detection through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The
+parameters are calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out
+run of a 5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an
+online run does not know its own mean signature before it ends), the penalty radius from the held-out places, the
+tie from the detector's radius, and the prior rate, given to the mapper as a function of n, from the held-out
+places per detection. ``--scale`` scales every grid's side by sqrt(scale) (n is in the rows).
 
 Its rows (``section, metric, n, value, unit``), for each run, n = the run's detections:
 
@@ -32,10 +31,10 @@ Its rows (``section, metric, n, value, unit``), for each run, n = the run's dete
 * ``online_map_ari`` -- adjusted Rand index of the final MAP against the truth; ``online_resamplings``;
 
 and ``online_window_median_s`` with n = 20, 40, ...: the median over updates n - 19 ... n of that run, the
-latency as the run grows (unit ``s (run of N)`` names the run: both runs have windows at n = 20 ... 100).
+latency as the run grows (unit ``s (run of N)`` names the run: every run has windows at n = 20 ... 100).
 
     $ ptm-bench speed --section scale
-    $ ptm-bench speed --section scale --scale 0.1   # 3 x 3 and 4 x 4 grids: quick, for checking the section runs
+    $ ptm-bench speed --section scale --scale 0.1   # 3 x 3 to 5 x 5 grids: quick, for checking the section runs
 """
 
 from __future__ import annotations
@@ -57,8 +56,7 @@ from ptm_bench.world.floorplan import corridor_grid
 
 __all__ = ["scale_rows"]
 
-GRID_SIDE = 10
-BEYOND_200_SIDE = 14  # the second online run's grid: 208 detections
+ONLINE_SIDES = (10, 14, 16)  # the online runs' grids: 116, 208 and 301 detections
 LATENCY_WINDOW = 20  # updates per online_window_median_s row
 HELD_OUT_SIDE = 5
 HELD_OUT_SEED = 1000
@@ -71,7 +69,7 @@ def _grid_run(side: int, seed: int) -> ptm.Dataset:
     return generate_dataset(floor, aliasing=0.0, noise=1.0, seed=seed, images=False)
 
 
-def _dataset_and_mapper(side: int = GRID_SIDE, seed: int = 0) -> tuple[ptm.Dataset, ptm.OnlineMapper]:
+def _dataset_and_mapper(side: int, seed: int = 0) -> tuple[ptm.Dataset, ptm.OnlineMapper]:
     """The grid run of the section and a fresh mapper for it, calibrated on the held-out run."""
     dataset = _grid_run(side, seed)
     mapper, _ = calibrated_mapper(dataset, [_grid_run(HELD_OUT_SIDE, HELD_OUT_SEED)], seed=seed)
@@ -80,7 +78,7 @@ def _dataset_and_mapper(side: int = GRID_SIDE, seed: int = 0) -> tuple[ptm.Datas
 
 def scale_rows(args) -> list[dict]:
     return ([row for side in _scaled(AGREEMENT_SIDES, args.scale) for row in _agreement_rows(side)]
-            + [row for side in _scaled((GRID_SIDE, BEYOND_200_SIDE), args.scale) for row in _online_rows(side)])
+            + [row for side in _scaled(ONLINE_SIDES, args.scale) for row in _online_rows(side)])
 
 
 def _scaled(sides, scale: float) -> list[int]:

@@ -101,9 +101,9 @@ Sections (all by default; pick with --section, repeatable):
   scale       the default sampler's time to agreement on generated grids of about
               30 and 60 detections; the online mapper's latency per detection
               (median, 90th percentile, largest, median of the last quarter and
-              of every 20 updates) replaying generated 10 x 10 and 14 x 14
-              corridor grids (116 and 208 detections), odometry + appearance,
-              and its final MAPs' ARI (about 12 minutes on 2 cores)
+              of every 20 updates) replaying generated 10 x 10, 14 x 14 and
+              16 x 16 corridor grids (116, 208 and 301 detections), odometry +
+              appearance, and its final MAPs' ARI (about 11 minutes on 2 cores)
 
 Timings are single-process; compare ratios within one run, not absolute times
 across machines. Each section's workload and settings are fixed in its module,
