@@ -22,9 +22,9 @@ detection n + 1 arrives (0-based index n):
    pi~_{n+1} (the new place first, whose exact value then stands for g in the joins'), the others keep the
    screened one, and q is the normalised exponential of these values: at a revisit the unlikely new place
    costs no importance sampling. Where every option is exact (always without global terms) the incremental
-   weight is the predictive probability of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same for every choice; otherwise the
-   chosen option is evaluated exactly if it was not, so the weights use the true posterior whatever the
-   screen: the particles target pi_{n+1} exactly (as P grows).
+   weight is the predictive probability of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same
+   for every choice; otherwise the chosen option is evaluated exactly if it was not, so the weights use the
+   true posterior whatever the screen: the particles target pi_{n+1} exactly (as P grows).
 2. *Resampling.* With normalised weights W^p, the effective sample size ESS = 1 / sum_p (W^p)^2; below
    ``resample_below`` x P the particles are resampled systematically (one uniform u, the p-th copy at
    (u + p) / P of the cumulative weights) and the weights reset to equal.

@@ -464,8 +464,9 @@ class OdometrySurrogate:
         return change
 
     def screening_change_bound(self, partition: Partition, removed, added) -> float:
-        """An upper bound of :meth:`screening_change`, cheaper where the prediction is not memoised: ``screening_trust``
-        times the sum of :meth:`MapEstimate.predicted_change_bound` (the memoised prediction where there is one)."""
+        """An upper bound of :meth:`screening_change`, cheaper where the prediction is not memoised:
+        ``screening_trust`` times the sum of :meth:`MapEstimate.predicted_change_bound` (the memoised prediction
+        where there is one)."""
         if (partition, tuple(added)) in self._predictions:
             return self.screening_change(partition, removed, added)
         self._bounds += 1

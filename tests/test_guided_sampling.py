@@ -376,8 +376,8 @@ def test_the_bound_leaves_the_chain_as_it_was():
     runs = []
     for wrap in (lambda surrogate: surrogate, WithoutBound):
         surrogate = OdometrySurrogate(posterior)
-        runs.append((ptm.mcmc(posterior, 400, seed=3, init=posterior.dataset.labels, delayed_acceptance=wrap(surrogate)),
-                     surrogate.diagnostics()))
+        result = ptm.mcmc(posterior, 400, seed=3, init=posterior.dataset.labels, delayed_acceptance=wrap(surrogate))
+        runs.append((result, surrogate.diagnostics()))
     (bounded, with_bound), (plain, without_bound) = runs
     np.testing.assert_array_equal(bounded.partitions, plain.partitions)
     np.testing.assert_array_equal(bounded.probabilities, plain.probabilities)
