@@ -15,28 +15,25 @@ paper's errata corrected).
     ((0, 1, 0, 1), (0, 1, 0, 1))
 """
 
-from . import export, features, moves
-from .appearance import (AppearanceModel, inverse_gamma_from_mean_variance, leave_one_out_pit, pair_log_bayes_factor,
-                         pairwise_log_bayes_factors, predictive_log_density, predictive_pit)
+from . import diagnostics, export, features, moves
+from .appearance import AppearanceModel
 from .appearance_joint import JointAppearanceModel
 from .dataset import Dataset
 from .exact import exact_posterior
 from .odometry import OdometryModel
 from .online import OnlineMapper
-from .partitions import Partition, bell, canonical, stirling2
+from .partitions import Partition, bell, canonical
 from .posterior import Posterior
 from .prior import PoissonPrior
 from .result import PTM, total_variation
-from .sampler import mcmc
+from .sampler import SamplerOptions, mcmc
 from .tempering import tempered_mcmc
 from .tie_normaliser import DeadReckonedTieNormaliser, TieNormaliser
 
 __all__ = [
-    "AppearanceModel", "JointAppearanceModel", "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior",
-    "bell", "canonical", "exact_posterior", "export", "features", "inverse_gamma_from_mean_variance",
-    "leave_one_out_pit", "pair_log_bayes_factor", "pairwise_log_bayes_factors", "predictive_log_density",
-    "predictive_pit",
-    "mcmc", "moves", "OnlineMapper", "stirling2", "tempered_mcmc", "total_variation", "OdometryModel", "TieNormaliser",
-    "DeadReckonedTieNormaliser",
+    "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior", "AppearanceModel", "JointAppearanceModel",
+    "OdometryModel", "TieNormaliser", "DeadReckonedTieNormaliser", "OnlineMapper", "SamplerOptions", "mcmc",
+    "tempered_mcmc", "exact_posterior", "total_variation", "canonical", "bell",
+    "diagnostics", "export", "features", "moves",
 ]
 __version__ = "0.1.0"

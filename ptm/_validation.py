@@ -11,12 +11,20 @@ silently wrong probability.
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import numpy as np
 
 
 def count(name: str, value, minimum: int) -> int:
-    """Return ``value`` as an int, or raise ``ValueError`` unless it is an integer >= ``minimum`` (not a bool)."""
-    if isinstance(value, bool) or int(value) != value or value < minimum:
+    """``value`` as an int: ``TypeError`` naming ``name`` unless it is an integer or a whole float (not a bool),
+    ``ValueError`` naming it unless it is finite, whole and at least ``minimum``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if not isinstance(value, numbers.Integral) and not (math.isfinite(value) and float(value).is_integer()):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if int(value) < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 

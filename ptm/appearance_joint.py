@@ -24,7 +24,8 @@ mu_n = (kappa mu + n abar) / kappa_n and shape matrix
 Psi_n (kappa_n + 1) / (kappa_n (nu_n - K + 1)); its one-dimensional marginals give
 the PIT values of :func:`ptm.appearance.predictive_pit`.
 
-    >>> from ptm import Dataset, JointAppearanceModel, pair_log_bayes_factor
+    >>> from ptm import Dataset, JointAppearanceModel
+    >>> from ptm.appearance import pair_log_bayes_factor
     >>> model = JointAppearanceModel(mu=[0.3, 0.1], kappa=0.1, nu=5.0, psi=[[4e-4, 3e-4], [3e-4, 4e-4]])
     >>> term = model.bind(Dataset(signatures=[[0.31, 0.11], [0.29, 0.09], [0.40, 0.02]]))
     >>> round(pair_log_bayes_factor(term, 0, 1), 2), round(pair_log_bayes_factor(term, 0, 2), 2)

@@ -14,39 +14,41 @@ detection n + 1 arrives (0-based index n):
    The proposal is the new detection's conditional under pi_{n+1} (the "locally optimal" one), with a
    cheap screen where the global (odometry) terms are expensive: every option gets the screened value
    cheap_{n+1}(T (+) b) + g + s(b), with g = global_n(T) + o(T) the particle's value so far plus the
-   surrogate's change from opening a place (a leaf of the pose graph: exact in the Laplace value, plus the
-   new detection's pairs' penalty; :meth:`ptm.surrogate.OdometrySurrogate.opened_place_change`) and s(b) its
-   prediction of the change from opening a new place to joining b (:mod:`ptm.surrogate`, a merge predicted
-   from the map of T (+) new; for a set ``FAR_OPTION_NATS`` below the best on a cheaper estimate, that
-   estimate). The options whose screened probability is at least ``screen`` get their exact value log
-   pi~_{n+1} (the new place first, whose exact value then stands for g in the joins'), the others keep the
-   screened one, and q is the normalised exponential of these values: at a revisit the unlikely new place
-   costs no importance sampling. Where every option is exact (always without global terms) the incremental
-   weight is the predictive probability of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same
-   for every choice; otherwise the chosen option is evaluated exactly if it was not, so the weights use the
-   true posterior whatever the screen: the particles target pi_{n+1} exactly (as P grows).
+   screen's change from opening a place (a leaf of the pose graph: exact in the Laplace value, plus the new
+   detection's pairs' penalty; the screen's ``opened_place_change``, :meth:`ptm.Posterior.screen`) and s(b)
+   its prediction of the change from opening a new place to joining b (a merge predicted from the map of
+   T (+) new; for a set ``FAR_OPTION_NATS`` below the best on a cheaper estimate, that estimate). The options
+   whose screened probability is at least ``screen`` get their exact value log pi~_{n+1} (the new place
+   first, whose exact value then stands for g in the joins'), the others keep the screened one, and q is the
+   normalised exponential of these values: at a revisit the unlikely new place costs no importance sampling.
+   Where every option is exact (always without global terms) the incremental weight is the predictive
+   probability of the new detection, sum_b pi~_{n+1}(T (+) b) / pi~_n(T), the same for every choice;
+   otherwise the chosen option is evaluated exactly if it was not, so the weights use the true posterior
+   whatever the screen: the particles target pi_{n+1} exactly (as P grows).
 2. *Resampling.* With normalised weights W^p, the effective sample size ESS = 1 / sum_p (W^p)^2; below
    ``resample_below`` x P the particles are resampled systematically (one uniform u, the p-th copy at
    (u + p) / P of the cumulative weights) and the weights reset to equal.
 3. *Rejuvenation.* Each particle takes one block move over the last ``reallocation_window`` detections
    (:class:`ptm.moves.TrailingReallocation`: they are allocated again jointly, in order) and then
-   ``rejuvenation_steps`` Metropolis-Hastings steps of the default moves (:func:`ptm.sampler.default_moves`),
-   all targeting pi_{n+1}, screened by the surrogate in delayed acceptance when there are global terms
-   (:func:`ptm.sampler.metropolis_step`): invariant for pi_{n+1}, so the weights stand, and copies of one
+   ``rejuvenation_steps`` Metropolis-Hastings steps of the default moves (:func:`ptm.moves.default_moves`),
+   all targeting pi_{n+1}, screened by the posterior's screen in delayed acceptance when there are global
+   terms (:func:`ptm.moves.metropolis_step`): invariant for pi_{n+1}, so the weights stand, and copies of one
    particle spread out again. The block move is what lets the particles change their mind about a
    retraced corridor: when a run of detections was aligned with the places one step off (each alone
    better there until the next detections arrive), no single move leads back, as each step alone loses
-   probability (measured on a 95-detection grid: 24 nats below the truth after two more detections,
-   every particle).
+   probability.
 
 The prior follows n in one of two ways. A prior object (``log_prob(n, m)``) is used at every n: with a
 :class:`ptm.PoissonPrior` the rate counts the world's landmarks, visited or not, a number that does not
 grow with the run, and the urn model is consistent (the prior of n detections is the marginal of that of
-n + 1). A callable ``n -> prior`` gives each n its own, e.g. the harness's calibrated rate, which
-expects a share of n places (:meth:`ptm.PoissonPrior.with_expected_places`); the targets then change
-non-consistently, which the weights account for. Each update binds the models to the first n + 1 detections
-(``model.bind``), as :func:`ptm.mcmc` with ``init`` does (docs/model.md §3.7); a term that can grow into the
-longer run keeps its memo (the appearance evidence of the sets seen so far).
+n + 1). A callable ``n -> prior`` gives each n its own, e.g. a calibrated rate that expects a share of n
+places (:meth:`ptm.PoissonPrior.with_expected_places`); the targets then change non-consistently, which the
+weights account for. Each update binds the models to the first n + 1 detections (``model.bind``), as a
+chain started from a shorter run's PTM does (docs/model.md §3.7); a term that can grow into the longer run
+keeps its memo (the appearance evidence of the sets seen so far).
+
+:func:`smc_draw` runs such a pass over a whole posterior's detections and draws one partition from its
+particles: the start of a chain of :func:`ptm.mcmc` (:mod:`ptm.starts`).
 
     >>> import numpy as np
     >>> import ptm
@@ -68,25 +70,21 @@ from scipy.special import logsumexp
 from ._threads import blas_threads, checked_blas_threads
 from ._validation import count, finite_array
 from .dataset import Dataset
-from .moves import TrailingReallocation, initial_state
+from .moves import MoveMixture, TrailingReallocation, default_moves, initial_state
 from .partitions import Partition
 from .posterior import Posterior
 from .result import PTM
-from .sampler import MoveMixture, default_moves
-from .surrogate import OdometrySurrogate
 
-__all__ = ["OnlineMapper", "incremental_log_weight", "smc_start", "systematic_resample"]
+__all__ = ["OnlineMapper", "incremental_log_weight", "smc_draw", "systematic_resample"]
 
-#: The surrogate's weight where it screens the rejuvenation's moves: whole, because a particle takes only a
-#: few steps per detection and each screened-out proposal saves a Laplace fit (over a 116-detection grid, at
-#: the batch samplers' half weight the last quarter's median update took 3.8 s against 1.7 s in full).
+#: The screen's weight where it screens the rejuvenation's moves: whole, because a particle takes only a few
+#: steps per detection and each screened-out proposal saves an evaluation of the global terms.
 REJUVENATION_SCREENING_TRUST = 1.0
-#: Options of a new detection whose cheap join estimate (:meth:`ptm.OdometrySurrogate.join_estimates`) puts them
-#: this many nats below the best keep that estimate instead of the surrogate's prediction (their probability in the
-#: proposal is then about e^-30; drawn, they are evaluated exactly like any other). On the speed benchmark's
-#: 116-detection grid (the truth's partition at n = 60, 100 and 116) the estimate fell below the prediction by at
-#: most 7.3 nats where the prediction was within 30 of the best, and this left 2-4 predictions per partition
-#: instead of one per set (36-57).
+#: Options of a new detection whose cheap join estimate (the screen's ``join_estimates``) puts them this many nats
+#: below the best keep that estimate instead of the screen's prediction: their probability in the proposal is then
+#: about e^-30, and drawn, they are evaluated exactly like any other. The estimate falls below the prediction by a
+#: few nats at most where the prediction is near the best, and it leaves a few predictions per partition instead of
+#: one per set.
 FAR_OPTION_NATS = 30.0
 
 
@@ -114,8 +112,8 @@ class OnlineMapper:
         Detections the block move of each rejuvenation allocates again (0: no block move).
     blas_threads : int or None
         Threads the BLAS libraries may use during an update (:mod:`ptm._threads`; restored after it), or None
-        to leave the process's setting. One by default: an update is many small solves, and on the speed
-        benchmark's 208-detection grid (2 cores) its median took 1.06 s with one thread and 1.42 s with two.
+        to leave the process's setting. One by default: an update is many small solves, which more threads
+        slow down rather than speed up.
 
     After each :meth:`add`, ``posterior`` is the :class:`ptm.Posterior` of the detections so far and
     :meth:`result` the particles' PTM.
@@ -198,16 +196,15 @@ class OnlineMapper:
             states = [initial_state(posterior, (0,))] * self.particles
             log_weights = np.zeros(self.particles)
         else:
-            surrogate = (OdometrySurrogate(posterior, screening_trust=REJUVENATION_SCREENING_TRUST)
-                         if posterior.has_global_terms else None)
-            states, log_weights = self._extended(posterior, surrogate)
+            screen = posterior.screen()
+            states, log_weights = self._extended(posterior, screen)
             ess = _effective_sample_size(log_weights)
             self._ess.append(ess)
             if ess < self.resample_below * self.particles:
                 chosen = systematic_resample(log_weights, self._rng)
                 states, log_weights = [states[index] for index in chosen], np.zeros(self.particles)
                 self._resamplings += 1
-            states = self._rejuvenated(posterior, states, surrogate)
+            states = self._rejuvenated(posterior, states, screen)
         self._signatures, self._odometry, self._odometry_cov = signatures, odometry_rows, covariances
         self.posterior, self._states, self._log_weights = posterior, states, log_weights
 
@@ -232,14 +229,14 @@ class OnlineMapper:
 
     # -- the three steps ------------------------------------------------------------------------------------------
 
-    def _extended(self, posterior, surrogate):
+    def _extended(self, posterior, screen):
         """Each particle extended by a draw of the new detection's place, and its new log weight (step 1)."""
         options_of: dict[Partition, _Options] = {}
         states, log_weights = [], np.empty(self.particles)
         for index, (state, log_weight) in enumerate(zip(self._states, self._log_weights)):
             options = options_of.get(state.partition)
             if options is None:
-                options = options_of[state.partition] = _Options.of(posterior, surrogate, state.partition, self.screen,
+                options = options_of[state.partition] = _Options.of(posterior, screen, state.partition, self.screen,
                                                                     state.log_global)
             if log_weight == -math.inf or not np.isfinite(options.log_q).any():
                 pick = len(options.candidates) - 1  # no mass anywhere: open a new place, weight 0
@@ -255,22 +252,23 @@ class OnlineMapper:
             raise ValueError(f"every particle has posterior probability 0 after detection {posterior.n}")
         return states, log_weights
 
-    def _rejuvenated(self, posterior, states, surrogate):
+    def _rejuvenated(self, posterior, states, screen):
         """Each particle after the block move and ``rejuvenation_steps`` MH steps, all invariant for
-        ``posterior`` (step 3)."""
-        screening = False if surrogate is None else surrogate
+        ``posterior`` (step 3), delayed acceptance screened by ``screen`` at ``REJUVENATION_SCREENING_TRUST``."""
+        screening = {"delayed_acceptance": posterior.has_global_terms,
+                     "screen": None if screen is None else _Trusted(screen, REJUVENATION_SCREENING_TRUST)}
         if self.reallocation_window:
-            block = MoveMixture([TrailingReallocation(self.reallocation_window)])
-            states = [block.step(posterior, state, self._rng, delayed_acceptance=screening)[0] for state in states]
+            block = MoveMixture([TrailingReallocation(self.reallocation_window)], **screening)
+            states = [block.step(posterior, state, self._rng)[0] for state in states]
             self._proposed += int(block.proposed.sum())
             self._accepted += int(block.accepted.sum())
         if self.rejuvenation_steps == 0:
             return states
-        mixture = MoveMixture(default_moves())
+        mixture = MoveMixture(default_moves(), **screening)
         moved = []
         for state in states:
             for _ in range(self.rejuvenation_steps):
-                state, _ = mixture.step(posterior, state, self._rng, delayed_acceptance=screening)
+                state, _ = mixture.step(posterior, state, self._rng)
             moved.append(state)
         self._proposed += int(mixture.proposed.sum())
         self._accepted += int(mixture.accepted.sum())
@@ -334,19 +332,20 @@ class OnlineMapper:
         return signatures, np.vstack([rows, row]), covariances
 
 
-def smc_start(posterior, particles: int, rng) -> tuple[int, ...]:
-    """A start for a chain of :func:`ptm.mcmc` (``smc_start``): the posterior's detections fed one by one to an
+def smc_draw(posterior, particles: int, rng) -> tuple[int, ...]:
+    """A partition drawn from an SMC pass over ``posterior``: its detections fed one by one to an
     :class:`OnlineMapper` of ``particles`` particles with the posterior's prior and models (seeded from ``rng``),
     and a partition drawn from its final particles by their weights.
 
     The pass builds the partition the way the run was walked: each detection joins one of the places so far
-    or opens one, and the block move realigns the last ones, so a chain starts near the posterior's bulk even
-    where the cheap warm-up (:func:`ptm.sampler.warm_up_start`) leaves it hundreds of nats below, in a
-    partition no single move leaves (docs/model.md §3.4, "Starts").
+    or opens one, and the block move realigns the last ones, so a chain started there begins near the
+    posterior's bulk, in a partition no single move leads to from a dispersed extreme (docs/model.md §3.4,
+    "Starts").
     """
     dataset = posterior.dataset
     if dataset.signatures is None and dataset.odometry is None:
-        raise ValueError("an SMC start needs the detections' signatures or odometry: this dataset has neither")
+        raise ValueError("an SMC start needs the detections' signatures or odometry: this dataset has neither "
+                         "(start the chains with start=\"dispersed\")")
     models = [_unbound(term) for term in posterior.terms]
     mapper = OnlineMapper(posterior.prior, models, particles=particles, seed=int(rng.integers(2**63)))
     result = mapper.extend(dataset)
@@ -360,7 +359,7 @@ def _unbound(term):
     if hasattr(term, "bind"):
         return term
     raise ValueError(f"{term!r} cannot be bound to the first detections of the run: an SMC start needs the models "
-                     "(or terms with a model or bind)")
+                     "(or terms with a model or bind); start the chains with start=\"dispersed\"")
 
 
 def incremental_log_weight(log_prob_extended: float, log_prob_before: float, log_q: float) -> float:
@@ -390,7 +389,9 @@ class _Options:
         self._states = {}
 
     @classmethod
-    def of(cls, posterior, surrogate, partition: Partition, screen: float, log_global_before: float) -> _Options:
+    def of(cls, posterior, predictor, partition: Partition, screen: float, log_global_before: float) -> _Options:
+        """The options of ``partition``: screened by ``predictor`` (the posterior's screen, or None) where the
+        global terms are expensive, and those at least ``screen`` likely evaluated exactly (step 1)."""
         new = partition.n
         blocks = partition.blocks
         candidates = [Partition(blocks[:j] + (block + (new,),) + blocks[j + 1:]) for j, block in enumerate(blocks)]
@@ -403,11 +404,15 @@ class _Options:
                                           log_prior[len(blocks) + 1] + posterior.block_score((new,)))
         if posterior.has_global_terms:
             alone = candidates[-1]
-            predicted = np.append(surrogate.join_estimates(alone, new), 0.0)
-            rough = values + predicted
-            for index in np.flatnonzero(rough[:-1] >= rough.max() - FAR_OPTION_NATS):
-                predicted[index] = surrogate.predicted_change(alone, [blocks[index], (new,)], [blocks[index] + (new,)])
-            opened = surrogate.opened_place_change(alone)
+            predicted = np.zeros(len(candidates))
+            opened = None
+            if predictor is not None:
+                predicted[:-1] = predictor.join_estimates(alone, new)
+                rough = values + predicted
+                for index in np.flatnonzero(rough[:-1] >= rough.max() - FAR_OPTION_NATS):
+                    predicted[index] = predictor.predicted_change(alone, [blocks[index], (new,)],
+                                                                  [blocks[index] + (new,)])
+                opened = predictor.opened_place_change(alone)
             approximate = opened is not None and math.isfinite(log_global_before + opened)
             base = log_global_before + opened if approximate else posterior.global_log_prob(alone)
             screened = values + base + predicted
@@ -430,6 +435,22 @@ class _Options:
         if state is None:
             state = self._states[pick] = initial_state(posterior, self.candidates[pick])
         return state
+
+
+class _Trusted:
+    """A posterior's screen seen at another trust: its screening change and that change's upper bound (the
+    change itself where the screen offers no bound) rescaled from the screen's own ``screening_trust`` (1 where
+    it states none) to ``trust``."""
+
+    def __init__(self, screen, trust: float):
+        self.screen, self.scale = screen, trust / getattr(screen, "screening_trust", 1.0)
+        self._bound = getattr(screen, "screening_change_bound", screen.screening_change)
+
+    def screening_change(self, partition, removed, added) -> float:
+        return self.scale * self.screen.screening_change(partition, removed, added)
+
+    def screening_change_bound(self, partition, removed, added) -> float:
+        return self.scale * self._bound(partition, removed, added)
 
 
 def _effective_sample_size(log_weights) -> float:

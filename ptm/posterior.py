@@ -13,6 +13,12 @@ the odometry ties, ``ptm.TieNormaliser``); what scores the cheap terms in
 place of the whole posterior reads :meth:`Posterior.standalone_block_score`,
 which leaves such terms out.
 
+A global term may offer a *screen* (``screen(posterior)``): a cheap prediction
+of how a move changes the global terms, from the map of the current partition
+(docs/model.md §3.4, "Delayed acceptance with the odometry surrogate").
+:meth:`Posterior.screen` gives it to the samplers and moves, which thus never
+know a particular term.
+
     >>> import numpy as np
     >>> from ptm import AppearanceModel, Dataset, PoissonPrior
     >>> dataset = Dataset(signatures=np.array([[0.30, 0.10], [0.40, 0.05], [0.31, 0.11], [0.41, 0.04]]))
@@ -59,6 +65,7 @@ class Posterior:
             prior.log_prob(self.n, m) for m in range(1, self.n + 1)]
         self.log_prior_by_size = [-math.inf] + [_checked(value, "prior") for value in by_size[1:]]
         self._block_cache = BoundedCache(block_cache_size)
+        self._screen = _UNBUILT
 
     # -- the pieces the samplers use ------------------------------------------------------------
 
@@ -76,7 +83,8 @@ class Posterior:
     def standalone_block_score(self, block) -> float:
         """:meth:`block_score` less the terms that complete a global term (``completes_global_term``): the
         decomposable terms that mean something without the global ones, for a score that stands in for the
-        whole posterior (a sampler's warm-up on the cheap terms). Equal to :meth:`block_score` when there are none."""
+        whole posterior (where a chain start places new detections by the cheap terms, :mod:`ptm.starts`). Equal
+        to :meth:`block_score` when there are none."""
         score = self.block_score(block)
         for term in self.completing_terms:
             score -= _checked(term.block_log_likelihood(tuple(block)), term)
@@ -103,6 +111,21 @@ class Posterior:
     @property
     def has_global_terms(self) -> bool:
         return bool(self.global_terms)
+
+    def screen(self):
+        """The screen of the global terms, built by the first global term that offers ``screen(posterior)``
+        (the odometry term's map-based prediction), memoised; None where no term offers one.
+
+        A screen predicts how a move changes the global terms: ``screening_change(partition, removed, added)``
+        (the prediction at the screen's ``screening_trust``; optionally ``screening_change_bound``, an upper
+        bound that is cheaper to find), ``predicted_change`` (the prediction itself), ``conditioned_map``,
+        ``join_estimates`` and ``opened_place_change`` for the map-guided moves and the online mapper, and
+        ``diagnostics()``. It only steers and screens: delayed acceptance's second stage corrects its error
+        exactly (docs/model.md §3.4).
+        """
+        if self._screen is _UNBUILT:
+            self._screen = next((term.screen(self) for term in self.global_terms if hasattr(term, "screen")), None)
+        return self._screen
 
     # -- public ------------------------------------------------------------------------------------
 
@@ -139,6 +162,9 @@ class Posterior:
 
     def __repr__(self) -> str:
         return f"Posterior(n={self.n}, prior={self.prior!r}, terms={[_name(t) for t in self.terms]})"
+
+
+_UNBUILT = object()  # Posterior.screen() not asked yet
 
 
 def _name(term) -> str:

@@ -135,7 +135,8 @@ class PoissonPrior:
             best = max(best, float(terms.max()))
             # Past k = M - 2, h has no local maximum before the bump, so every term up to the bump's edge is
             # below this one or below the edge: stop once this one is negligible.
-            if counts[-1] >= m - 2 and terms[-1] < max(best, top) - _DEPTH and (peak is not None or terms[-1] < terms[0]):
+            negligible = terms[-1] < max(best, top) - _DEPTH
+            if counts[-1] >= m - 2 and negligible and (peak is not None or terms[-1] < terms[0]):
                 break
             start += _CHUNK
         if head:
@@ -146,8 +147,11 @@ class PoissonPrior:
             if high - low <= _MAX_TERMS:
                 parts.append(float(logsumexp(_log_terms(np.arange(low, high + 1, dtype=float), n, m, rate))))
             else:
-                area, _ = integrate.quad(lambda x: math.exp(float(_log_terms(np.array([x]), n, m, rate, peak)[0]) - top),
-                                         low - peak, high - peak, points=[0.0], epsabs=0.0, epsrel=1e-11, limit=200)
+                def relative_term(x):
+                    return math.exp(float(_log_terms(np.array([x]), n, m, rate, peak)[0]) - top)
+
+                area, _ = integrate.quad(relative_term, low - peak, high - peak, points=[0.0], epsabs=0.0,
+                                         epsrel=1e-11, limit=200)
                 parts.append(top + math.log(area))
         return m * math.log(rate) + float(logsumexp(parts))
 

@@ -2,7 +2,7 @@
 
 A PTM is a histogram over canonical partitions — exact probabilities from
 enumeration, or from MCMC visit frequencies or posterior values renormalised
-over the visited partitions (``ptm.mcmc(..., estimate=...)``). It answers: the k most probable
+over the visited partitions (:mod:`ptm.recorder`). It answers: the k most probable
 topologies, the probability of any partition (0 if never visited), the MAP,
 pairwise co-assignment probabilities P(i and j are the same place), the
 expected number of places, the entropy, a pandas export and, for sampled
@@ -44,7 +44,7 @@ class PTM:
         Distinct canonical label rows (restricted growth strings, :func:`ptm.partitions.canonical`);
         anything else is a ``ValueError`` naming the first bad row.
     probabilities : (P,) array
-        Their probabilities (normalised here).
+        Their probabilities (normalised here, unless they already sum to one to rounding).
     method : str
         "exact" or "mcmc".
     diagnostics : dict
@@ -66,7 +66,11 @@ class PTM:
         # top() and map() do not depend on the order the partitions came in.
         order = np.lexsort((label_rank, -probabilities))
         self.partitions = partitions[order].astype(np.int16 if partitions.shape[1] < 32_000 else np.int32)
-        self.probabilities = probabilities[order] / probabilities.sum()
+        total = probabilities.sum()
+        # Normalised here, unless they sum to one to rounding already (a saved PTM loads to the bit: dividing by
+        # such a sum again would move the last digits).
+        normalised = abs(total - 1.0) <= len(probabilities) * np.finfo(float).eps
+        self.probabilities = probabilities[order] if normalised else probabilities[order] / total
         self.method = method
         self.diagnostics = dict(diagnostics or {})
         self.traces = {name: np.asarray(value) for name, value in (traces or {}).items()}
@@ -219,7 +223,8 @@ def _canonical_rows(partitions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # A canonical label lies in [0, N): checked before the cast, so that 1e20 or 2**63 cannot wrap round.
     in_range = (partitions >= 0) & (partitions < n)
     labels = np.where(in_range, partitions, -1).astype(np.int64)
-    ceiling = np.concatenate([np.zeros((rows, 1), dtype=np.int64), np.maximum.accumulate(labels, axis=1)[:, :-1] + 1], axis=1)
+    ceiling = np.concatenate([np.zeros((rows, 1), dtype=np.int64), np.maximum.accumulate(labels, axis=1)[:, :-1] + 1],
+                             axis=1)
     bad = np.flatnonzero(np.any(~in_range | (labels > ceiling), axis=1))
     if bad.size:
         row = partitions[bad[0]]

@@ -21,43 +21,35 @@ the set's size only, so :class:`TieNormaliser` is a decomposable term, scored
 with the prior and appearance (the cheap part of the posterior), and
 ``Posterior(dataset, prior, [odometry_model, TieNormaliser(area, sigma_T)])``
 is the odometry model with a normalised landmark prior. It is not the
-paper's model; the library offers it as an option (the harness adds it by
-default, ``odometry.tie_normaliser``). A comes from what a user knows
-(the size of the building) or from the run itself without labels
-(:meth:`TieNormaliser.from_dead_reckoning`). :class:`DeadReckonedTieNormaliser`
+paper's model; the library offers it as an option, which the harness always
+adds. A comes from what a user knows (the size of the building) or from the
+run itself without labels (:meth:`TieNormaliser.from_dead_reckoning`). :class:`DeadReckonedTieNormaliser`
 is that rule as an unbound model: each dataset it is bound to gets the area
 of its own dead-reckoned detections, so the online mapper, which binds its
 models anew to the detections so far, uses the area the robot has covered so far.
 
-Which area: landmarks are where the robot can detect them, within the
-detector's radius of its route, and a building's corridors fill little of the
-box around them. The rule ``"route"`` (the default, :func:`route_area`) is the
-area within ``margin`` of the dead-reckoned route through the detections: 421
-m^2 on a simulated ``office`` run whose dead-reckoned detections span a box of
-2 164 m^2, 644 m^2 against 2 259 m^2 on ACES (the shipped dataset). Taking the
-box as A (``"bounding_box"``, the rule until 2026-12-04) makes a chance
-coincidence of two distinct places four or five times less likely than it is,
-and rewards every merge by log 4-5 = 1.5 nats too much: on ACES the online
-map so scored merged 41 places into 32, with 62 nats more of that reward than
-the truth's. Dead reckoning draws a corridor driven twice as two, so the
-route's area can be up to that much larger than the building's (Intel: 653
-m^2 against 339 m^2 along its reference), which errs towards the box.
+Which area (docs/model.md §3.3, "Which area"): landmarks are where the robot
+can detect them, within the detector's radius of its route, and a building's
+corridors fill a fraction of the box around them. So A is the area within
+``margin`` of the dead-reckoned route through the detections
+(:func:`route_area`). The box around them would make a chance coincidence of
+two distinct places seem several times less likely than it is, and reward
+every merge by the log of that factor. Dead reckoning draws a corridor driven
+twice as two, so the route's area can exceed the building's, an error towards
+the box's.
 
 The normaliser rewards a merge by about (n - 1) log(A / (2 pi sigma_T^2)),
-7-8 nats a pair on a 40 m grid at sigma_T = 0.53 m, that only the odometry
-term's ties take back: it is the normaliser of *their* density and means
-nothing without them. So it declares ``completes_global_term``, and what
-scores the cheap terms alone (the samplers' warm-up before the odometry
-surrogate joins, the placement of a new detection in an incremental start)
-leaves it out (:meth:`ptm.Posterior.standalone_block_score`).
+several nats a pair, that only the odometry term's ties take back: it is the
+normaliser of *their* density and means nothing without them. So it declares
+``completes_global_term``, and what scores the cheap terms alone (the
+placement of a new detection in an incremental start) leaves it out
+(:meth:`ptm.Posterior.standalone_block_score`).
 
     >>> normaliser = TieNormaliser(area=1600.0, sigma_topology=2.0)
     >>> round(normaliser.block_log_likelihood((3,)), 3), round(normaliser.block_log_likelihood((0, 6)), 3)
     (0.0, 4.154)
     >>> from ptm import Dataset
-    >>> two_detections = Dataset(odometry=[[38.0, 0.0, 1.5708]])          # 38 m apart: a capsule, or a box
-    >>> DeadReckonedTieNormaliser(2.0, margin=1.0, area_rule="bounding_box").bind(two_detections)
-    TieNormaliser(area=80, sigma_topology=2)
+    >>> two_detections = Dataset(odometry=[[38.0, 0.0, 1.5708]])          # 38 m apart: a capsule
     >>> DeadReckonedTieNormaliser(sigma_topology=2.0, margin=1.0).bind(two_detections)   # 2 x 38 + pi
     TieNormaliser(area=79.25, sigma_topology=2)
 """
@@ -73,10 +65,8 @@ import scipy.spatial
 from ._validation import positive
 from .se2 import dead_reckoning
 
-__all__ = ["AREA_RULES", "DeadReckonedTieNormaliser", "TieNormaliser", "route_area"]
+__all__ = ["DeadReckonedTieNormaliser", "TieNormaliser", "route_area"]
 
-#: How :meth:`TieNormaliser.from_dead_reckoning` measures the landmarks' area.
-AREA_RULES = ("route", "bounding_box")
 #: Raster cells per ``margin`` with which :func:`route_area` counts (within 4 % of a disc's area, 2 % of a
 #: capsule's or a ring's), and the most cells it uses (coarser above).
 ROUTE_CELLS_PER_MARGIN = 8
@@ -98,22 +88,15 @@ class TieNormaliser:
         self.sigma_topology = positive("sigma_topology", sigma_topology)
 
     @classmethod
-    def from_dead_reckoning(cls, dataset, sigma_topology: float, margin: float,
-                            area_rule: str = "route") -> "TieNormaliser":
-        """A from the scored run itself, ``margin`` [m] for example the detection radius; no labels are read.
-        ``area_rule``: ``"route"``, the area within ``margin`` of the dead-reckoned route through the
-        detections (:func:`route_area`), or ``"bounding_box"``, their bounding box with ``margin`` added on
-        every side. A single detection (no odometry rows) spans the margin's disc or square."""
-        if area_rule not in AREA_RULES:
-            raise ValueError(f"area_rule must be one of {AREA_RULES}, got {area_rule!r}")
+    def from_dead_reckoning(cls, dataset, sigma_topology: float, margin: float) -> "TieNormaliser":
+        """A from the scored run itself: the area within ``margin`` [m], for example the detection radius, of
+        the dead-reckoned route through the detections (:func:`route_area`); no labels are read. A single
+        detection (no odometry rows) spans the margin's disc."""
         if dataset.odometry is None and dataset.n != 1:
             raise ValueError("TieNormaliser.from_dead_reckoning needs a dataset with odometry")
         margin = _margin(margin)
         positions = np.zeros((1, 2)) if dataset.odometry is None else dead_reckoning(dataset.odometry)[:, :2]
-        if area_rule == "route":
-            area = route_area(positions, margin)
-        else:
-            area = float(np.prod(np.ptp(positions, axis=0) + 2.0 * margin))
+        area = route_area(positions, margin)
         if area <= 0.0:
             raise ValueError("the dead-reckoned detections span no area; give a margin > 0")
         return cls(area, sigma_topology)
@@ -139,26 +122,22 @@ class TieNormaliser:
 
 class DeadReckonedTieNormaliser:
     """The unbound :class:`TieNormaliser` whose area is that of the detections it is bound to
-    (:meth:`TieNormaliser.from_dead_reckoning` with ``margin`` [m], for example the detection radius, and
-    ``area_rule``)."""
+    (:meth:`TieNormaliser.from_dead_reckoning` with ``margin`` [m], for example the detection radius): the
+    online mapper, which binds its models anew to the detections so far, uses the area covered so far."""
 
     name = TieNormaliser.name
     completes_global_term = True
 
-    def __init__(self, sigma_topology: float, margin: float, area_rule: str = "route"):
+    def __init__(self, sigma_topology: float, margin: float):
         self.sigma_topology = positive("sigma_topology", sigma_topology)
         self.margin = _margin(margin)
-        if area_rule not in AREA_RULES:
-            raise ValueError(f"area_rule must be one of {AREA_RULES}, got {area_rule!r}")
-        self.area_rule = area_rule
 
     def bind(self, dataset) -> TieNormaliser:
         """The normaliser for ``dataset``'s dead-reckoned detections."""
-        return TieNormaliser.from_dead_reckoning(dataset, self.sigma_topology, self.margin, self.area_rule)
+        return TieNormaliser.from_dead_reckoning(dataset, self.sigma_topology, self.margin)
 
     def __repr__(self) -> str:
-        return (f"DeadReckonedTieNormaliser(sigma_topology={self.sigma_topology:g}, margin={self.margin:g}, "
-                f"area_rule={self.area_rule!r})")
+        return f"DeadReckonedTieNormaliser(sigma_topology={self.sigma_topology:g}, margin={self.margin:g})"
 
 
 def route_area(positions, margin: float) -> float:

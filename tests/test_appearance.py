@@ -8,7 +8,8 @@ from scipy import integrate, stats
 from scipy.optimize import OptimizeResult
 
 from helpers import appearance_posterior
-from ptm import AppearanceModel, Dataset, Partition, inverse_gamma_from_mean_variance
+from ptm import AppearanceModel, Dataset, Partition
+from ptm.appearance import inverse_gamma_from_mean_variance
 
 
 def numerical_evidence(values, mu, kappa, alpha, beta):

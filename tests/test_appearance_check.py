@@ -15,7 +15,7 @@ def test_the_appearance_check_counts_pairs_and_bounds_their_shares():
     dataset = ptm.Dataset(signatures=signatures, labels=np.array([0, 0, 0, 1, 1]))
     model = ptm.AppearanceModel(mu=0.5, kappa=0.1, alpha=3.0, beta=1e-3)
     row, pits = _check(lambda run: model, [dataset])
-    factors = ptm.pairwise_log_bayes_factors(model.bind(dataset))
+    factors = ptm.appearance.pairwise_log_bayes_factors(model.bind(dataset))
     assert factors[0, 1] > 0 and factors[0, 2] < 0 and factors[2, 3] > 0  # the construction does what it says
     assert row["revisit_pairs"] == 4 and row["different_pairs"] == 6
     assert row["revisits_favouring_split"] == pytest.approx(2 / 4)  # (0, 2) and (1, 2)

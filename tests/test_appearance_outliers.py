@@ -19,7 +19,7 @@ from scipy import integrate, stats
 import ptm
 from helpers import PLACE_SIGNATURES, TRUE_LABELS_8
 from ptm.appearance_outliers import stack_evidence_and_gradient
-from test_sampler import TOLERANCE, SplitMergeWithoutHastingsRatio, total_variation_to_exact
+from test_sampler import TOLERANCE, SplitMergeWithoutHastingsRatio, total_variation_to_exact, visit_frequencies  # noqa: F401
 
 MU, KAPPA, ALPHA, BETA = 0.3, 0.5, 3.0, 2 * 0.02 ** 2
 VALUES = np.array([0.31, 0.29, 0.37])  # the third visit far from the other two
@@ -75,15 +75,15 @@ def test_predictive_is_normalised_and_obeys_the_chain_rule_where_the_bound_does_
     assert integrate.quad(density, -np.inf, np.inf, epsabs=1e-12)[0] == pytest.approx(1.0, abs=1e-7)
     assert predictive.marginal_cdf([0.33])[0] == pytest.approx(integrate.quad(density, -np.inf, 0.33)[0], abs=1e-7)
     chain_rule = term.block_log_likelihood((0, 1, 2)) - term.block_log_likelihood((0, 1))
-    assert ptm.predictive_log_density(term, 2, (0, 1)) == pytest.approx(chain_rule, abs=1e-10)
+    assert ptm.appearance.predictive_log_density(term, 2, (0, 1)) == pytest.approx(chain_rule, abs=1e-10)
 
 
 def test_outlier_visits_soften_the_split_of_a_far_revisit():
     plain = one_component_term(ptm.AppearanceModel(MU, KAPPA, ALPHA, BETA))
     robust = one_component_term(model(share=0.1, scale=9.0, max_outliers=2))
-    assert ptm.pair_log_bayes_factor(plain, 0, 2) < ptm.pair_log_bayes_factor(robust, 0, 2)
+    assert ptm.appearance.pair_log_bayes_factor(plain, 0, 2) < ptm.appearance.pair_log_bayes_factor(robust, 0, 2)
     # near visits: the same verdict either way
-    assert ptm.pair_log_bayes_factor(plain, 0, 1) > 0 and ptm.pair_log_bayes_factor(robust, 0, 1) > 0
+    assert ptm.appearance.pair_log_bayes_factor(plain, 0, 1) > 0 and ptm.appearance.pair_log_bayes_factor(robust, 0, 1) > 0
 
 
 def outlier_posterior(n: int = 8, seed: int = 0) -> ptm.Posterior:
@@ -103,7 +103,7 @@ def test_outlier_posterior_is_spread_out():
 
 def test_sampler_matches_exact_posterior_with_outliers():
     # measured TV 0.050, 0.034, 0.034 over seeds 7, 8, 9 (default moves); bound shared with test_sampler
-    assert total_variation_to_exact(outlier_posterior(), None, seed=7) < TOLERANCE
+    assert total_variation_to_exact(outlier_posterior(), "default", seed=7) < TOLERANCE
 
 
 def test_negative_control_fails_with_outliers():
@@ -196,13 +196,13 @@ def test_rare_outlier_visits_are_the_harness_default_and_the_paper_model_another
         (only,) = expand_cells(parse_experiment(sweep_config(appearance)), Path("unused"))
         return only
 
-    default = cell({})["settings"]["appearance"]
-    assert (default["outliers"], default["max_outlier_share"]) == (True, 0.1)
+    default = cell({})["settings"].appearance
+    assert (default.outliers, default.max_outlier_share) == (True, 0.1)
     assert cell({})["definition"] == cell({"outliers": True, "max_outlier_share": 0.1})["definition"]
     assert cell({})["definition"] != cell({"outliers": False})["definition"]
     # where the model has no outlier form, "auto" is the model without them: the same cell as false
     for other in ({"model": "joint"}, {"evidence": "paper_eq19"}):
-        assert cell(other)["settings"]["appearance"]["outliers"] is False
+        assert cell(other)["settings"].appearance.outliers is False
         assert cell(other)["definition"] == cell({**other, "outliers": False})["definition"]
     # rows computed before the default changed pin false, or true with the unbounded share (test_provenance:
     # at those old values the keys stay out of the definitions)

@@ -2,7 +2,9 @@
 
 Random label sequences for partitions and PTMs, random shapes and values for ``Dataset``, random and
 damaged bytes for ``Dataset.load`` and ``PTM.load``: never another exception type, never a hang, never a
-silently wrong answer (what is accepted is checked against a plain-Python reference).
+silently wrong answer (what is accepted is checked against a plain-Python reference). The samplers' settings
+(``ptm.SamplerOptions``, ``n_samples``) take any value or refuse it with a ``ValueError`` or ``TypeError`` naming
+the setting, never an ``OverflowError`` from deep inside.
 """
 
 import tempfile
@@ -16,8 +18,9 @@ from hypothesis.extra import numpy as hnp
 
 import ptm
 from ptm.partitions import Partition, canonical
+from ptm._validation import count
 
-SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=150, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 
 labels = st.one_of(
     st.integers(min_value=-(2 ** 70), max_value=2 ** 70),
@@ -123,3 +126,51 @@ def test_any_bytes_load_or_raise_a_value_error(kind, damage):
             load(path)
         except ValueError as error:
             assert str(path) in str(error)
+
+
+anything = st.one_of(
+    st.none(), st.booleans(), st.integers(min_value=-(2 ** 70), max_value=2 ** 70),
+    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=3), st.lists(st.integers(0, 3), max_size=4),
+)
+WHOLE_FIELDS = {"burn_in": 0, "thin": 1, "chains": 1, "max_doublings": 0}
+
+
+@SETTINGS
+@given(st.sampled_from(sorted(WHOLE_FIELDS) + ["unscreened_share", "delayed_acceptance", "start", "moves"]), anything)
+def test_any_sampler_setting_is_kept_valid_or_refused_by_name(field, value):
+    try:
+        options = ptm.SamplerOptions(**{field: value})
+    except (ValueError, TypeError) as error:
+        assert field in str(error)
+        return
+    kept = getattr(options, field)
+    if field in WHOLE_FIELDS:
+        assert kept is None if field == "burn_in" and value is None else (isinstance(kept, int) and kept == value
+                                                                           and kept >= WHOLE_FIELDS[field])
+    elif field == "unscreened_share":
+        assert 0.0 <= kept <= 1.0 and kept == value
+    elif field == "delayed_acceptance":
+        assert kept is value
+    elif field == "start":
+        assert kept in ("smc", "dispersed") or kept == canonical(value)
+    else:
+        assert kept in ("auto", "default", "paper", "guided")
+
+
+@SETTINGS
+@given(anything)
+def test_any_count_is_a_whole_number_or_refused_by_name(value):
+    try:
+        number = count("n_samples", value, 1)
+    except (ValueError, TypeError) as error:
+        assert "n_samples" in str(error)
+        return
+    assert isinstance(number, int) and number == value and number >= 1
+
+
+@pytest.mark.parametrize("value", [float("inf"), None, "100", float("nan"), 2.5, True])
+@pytest.mark.parametrize("sampler", [ptm.mcmc, ptm.tempered_mcmc])
+def test_a_bad_sample_count_is_refused_before_sampling(sampler, value):
+    posterior = ptm.Posterior(ptm.Dataset(labels=[0, 1]), ptm.PoissonPrior(1.0))
+    with pytest.raises((ValueError, TypeError), match="n_samples"):
+        sampler(posterior, value)

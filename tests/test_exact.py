@@ -7,6 +7,7 @@ import pytest
 
 import ptm
 from helpers import appearance_posterior, prior_only_posterior
+from ptm.partitions import stirling2
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 8])
@@ -87,7 +88,7 @@ def test_enumeration_is_iterative_in_lexicographic_order(monkeypatch):
     rows, places = [tuple(row) for row in exact.partitions], exact.num_places()
     for m in range(1, 8):
         same_m = [row for row, count in zip(rows, places) if count == m]
-        assert len(same_m) == ptm.stirling2(7, m) and same_m == sorted(same_m)
+        assert len(same_m) == stirling2(7, m) and same_m == sorted(same_m)
 
 
 def _square_loop_with_appearance(n: int, seed: int = 0) -> ptm.Dataset:
@@ -182,8 +183,7 @@ def test_the_harness_method_auto_samples_where_exact_enumeration_would_exceed_it
     from ptm_bench.evaluation import cell
 
     dataset = _square_loop_with_appearance(6)
-    inference = {"exact_max_n": 10}
-    assert cell._affordable_exact_posterior(_square_posterior(dataset), inference).method == "exact"
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), 10).method == "exact"
     monkeypatch.setattr(cell, "AUTO_EXACT_GLOBAL_EVALUATIONS", 5)
-    assert cell._affordable_exact_posterior(_square_posterior(dataset), inference) is None
-    assert cell._affordable_exact_posterior(_square_posterior(dataset), {"exact_max_n": 5}) is None
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), 10) is None
+    assert cell._affordable_exact_posterior(_square_posterior(dataset), 5) is None

@@ -1,9 +1,13 @@
-"""The odometry surrogate, delayed acceptance screened by it, and the data-driven moves (docs/model.md §3.4).
+"""The odometry surrogate (the posterior's screen), delayed acceptance screened by it, the data-driven moves and
+the move sets (docs/model.md §3.4).
 
 The statistical harness is the one of tests/test_sampler_exactness.py: a
 fixed-seed run against the exact posterior, total variation below
 TOLERANCE = 0.06, and for each correct sampler a broken twin that must exceed
-the bound by a wide margin. Measured TV, correct / broken, at the seeds used:
+the bound by a wide margin. Delayed acceptance screened by a given surrogate
+(another trust than the posterior's own screen's, a broken second stage) runs
+the default moves in two chains from dispersed starts as :func:`ptm.mcmc` seeds
+them (:func:`screened_run`). Measured TV, correct / broken, at the seeds used:
 
 * guided split-merge alone, appearance N = 8: 0.040 / with its whole Hastings
   term left out 0.220 (asked: > 3 x the bound) / with the reverse move's
@@ -14,17 +18,15 @@ the bound by a wide margin. Measured TV, correct / broken, at the seeds used:
   probability alone left out 0.035 at full trust: an accurate surrogate makes
   the move nearly a Gibbs step, which needs no correction);
 * the same target, surrogate delayed acceptance with the default moves: 0.019
-  (0.018 with the prediction at full weight, screening_trust = 1); with the
-  guided moves (window reallocation included) and a warm-up: 0.024; two
-  tempered ladders with the guided moves, the surrogate and a warm-up: 0.010; the guided moves with 30 % of
-  the steps unscreened (``unscreened_share``): 0.012. The mixture has no broken twin of its own: it is exact
-  because each of its two kernels is (both tested here), and a kernel chosen by the state instead of at
-  random (unscreened in partitions of >= 2, 3, 4 or 5 places) gave 0.017-0.021 on this target, no signal
-  at six detections. The broken twins run at full
-  weight, where a wrong correction shows most: second stage without the
-  surrogate's correction 0.541 (> 3 x); second stage with the reverse
-  prediction s_T'(T) left out 0.200 (> 2 x; at the default half weight 0.058,
-  too close to the bound to be a check).
+  (0.018 with the prediction at full weight, screening_trust = 1); the guided
+  moves with the posterior's screen: 0.010, in two tempered ladders 0.018; the
+  default moves at full weight with 30 % of the steps unscreened
+  (``unscreened_share``): 0.025. The mixture has no broken twin of its
+  own: it is exact because each of its two kernels is (both tested here). The
+  broken twins run at full weight, where a wrong correction shows most: second
+  stage without the surrogate's correction 0.541 (> 3 x); second stage with the
+  reverse prediction s_T'(T) left out 0.200 (> 2 x; at the default half weight
+  0.058, too close to the bound to be a check).
 
 The odometry target is enumerated once per session (``mixed_target(6)``).
 """
@@ -35,16 +37,49 @@ import numpy as np
 import pytest
 
 import ptm
-import ptm.sampler
-import ptm.surrogate
-from helpers import appearance_posterior
-from ptm.moves import GuidedSplitMerge, MapReassign, MapWindowReallocation, Proposal, initial_state
-from ptm.sampler import default_moves, guided_moves, second_stage_log_ratio
-from ptm.surrogate import OdometrySurrogate
-from ptm_bench.evaluation.cell import GUIDED_FROM_N, _sampler_options, resolved_burn_in, resolved_moves
+import ptm.moves.metropolis
+import ptm.odometry.surrogate
+import ptm.recorder
+from helpers import appearance_posterior, prior_only_posterior
+from ptm.moves import (GUIDED_FROM_N, GibbsReassign, GuidedSplitMerge, MapReassign, MapWindowReallocation, MoveMixture,
+                       Proposal, SplitMerge, WindowReallocation, default_moves, initial_state, move_set,
+                       second_stage_log_ratio)
+from ptm.odometry import OdometrySurrogate
+from ptm.sampler import run_chains
+from ptm.starts import chain_start
 from test_odometry import mixed_target, square_loop_dataset
-from test_sampler import TOLERANCE
+from test_sampler import FIXED, TOLERANCE, visit_frequencies  # noqa: F401 (an autouse fixture)
 from test_sampler_exactness import WithoutProposalRatio, total_variation_to_exact
+
+
+def screened_by(monkeypatch, posterior, screen):
+    """``posterior`` with ``screen`` in place of its own (:meth:`ptm.Posterior.screen`) for one test."""
+    monkeypatch.setattr(posterior, "screen", lambda: screen)
+    return posterior
+
+
+class Chain:
+    """One chain of a :class:`ptm.moves.MoveMixture` (what :func:`ptm.sampler.run_chains` advances)."""
+
+    def __init__(self, posterior, labels, rng, mixture):
+        self.posterior, self.state, self.rng, self.mixture = posterior, initial_state(posterior, labels), rng, mixture
+
+    def step(self):
+        self.state, _ = self.mixture.step(self.posterior, self.state, self.rng)
+        return self.state
+
+
+def screened_run(posterior, screen, n_samples=15_000, seed=5, unscreened_share=0.0):
+    """The default moves (split/merge and Gibbs reassignment) with delayed acceptance screened by ``screen``: two
+    chains from dispersed starts, seeded as :func:`ptm.mcmc` seeds them, 1 000 steps of burn-in. Returns the PTM and
+    the mixture."""
+    mixture = MoveMixture(default_moves(), delayed_acceptance=True, screen=screen, unscreened_share=unscreened_share)
+    chains = []
+    for chain, chain_seed in enumerate(np.random.SeedSequence(seed).spawn(2)):
+        rng = np.random.default_rng(chain_seed)
+        chains.append(Chain(posterior, chain_start(posterior, "dispersed", chain, rng), rng, mixture))
+    recorder, _ = run_chains(chains, n_samples, burn_in=1_000, thin=1, max_doublings=0)
+    return recorder.result("mcmc", mixture.diagnostics()), mixture
 
 # -- the second stage's ratio, by hand ------------------------------------------------------------------------
 
@@ -205,12 +240,12 @@ def test_negative_control_map_reassign_without_its_proposal_ratio_fails():
 
 
 def map_window_with_default_moves(wrap=lambda move: move):
-    """The default moves with a surrogate, the map-steered window (of three) at 0.6 of the steps."""
+    """The default moves with a screen, the map-steered window (of three) at 0.6 of the steps."""
     posterior, exact = mixed_target(6)
-    surrogate = OdometrySurrogate(posterior)
+    screen = posterior.screen()
     return posterior, exact, [(move, 0.2) if not isinstance(move, MapWindowReallocation) else
-                              (wrap(MapWindowReallocation(surrogate, window=3)), 0.6)
-                              for move, _ in default_moves(surrogate)]
+                              (wrap(MapWindowReallocation(screen, window=3)), 0.6)
+                              for move, _ in default_moves(screen)]
 
 
 def test_the_map_steered_window_keeps_the_exact_posterior():
@@ -228,62 +263,61 @@ def test_negative_control_the_map_steered_window_without_its_ratio_fails():
 # -- delayed acceptance screened by the surrogate (odometry + appearance) --------------------------------------------
 
 
-@pytest.mark.parametrize("trust", [ptm.surrogate.SCREENING_TRUST, 1.0], ids=["default_trust", "full_trust"])
+def test_the_posterior_offers_its_odometry_terms_screen_once():
+    posterior, _ = mixed_target(6)
+    assert isinstance(posterior.screen(), OdometrySurrogate) and posterior.screen() is posterior.screen()
+    assert appearance_posterior().screen() is None  # no global term, no screen
+
+
+@pytest.mark.parametrize("trust", [ptm.odometry.surrogate.SCREENING_TRUST, 1.0], ids=["default_trust", "full_trust"])
 def test_surrogate_delayed_acceptance_matches_the_exact_posterior(trust):
     posterior, exact = mixed_target(6)
     surrogate = OdometrySurrogate(posterior, screening_trust=trust)  # any deterministic screening keeps it exact
-    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, delayed_acceptance=surrogate)
+    result, _ = screened_run(posterior, surrogate)
     assert ptm.total_variation(result, exact) < TOLERANCE
-    assert result.diagnostics["surrogate"]["predictions"] > 0
+    assert surrogate.diagnostics()["predictions"] > 0
 
 
-def test_guided_moves_with_surrogate_and_warm_up_match_the_exact_posterior():
+def test_the_guided_moves_with_the_posteriors_screen_match_the_exact_posterior():
     posterior, exact = mixed_target(6)
-    surrogate = OdometrySurrogate(posterior)
-    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, delayed_acceptance=surrogate,
-                      moves=guided_moves(posterior, surrogate), warm_up=200)
+    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, moves="guided", **FIXED)
     assert ptm.total_variation(result, exact) < TOLERANCE
+    assert result.diagnostics["moves"] == "guided" and result.diagnostics["screen"]["predictions"] > 0
 
 
-def test_tempered_ladders_with_the_guided_options_match_the_exact_posterior():
+def test_tempered_ladders_with_the_guided_moves_match_the_exact_posterior():
     posterior, exact = mixed_target(6)
     result = ptm.tempered_mcmc(posterior, 8_000, temperatures=(1.0, 0.5), burn_in=500, seed=5, chains=2,
-                               **ptm.sampler.guided_options(posterior))
+                               moves="guided", **FIXED)
     assert ptm.total_variation(result, exact) < TOLERANCE
-    assert result.diagnostics["surrogate"]["predictions"] > 0
+    assert result.diagnostics["screen"]["predictions"] > 0
 
 
 def test_unscreened_steps_mixed_with_screened_ones_match_the_exact_posterior():
     posterior, exact = mixed_target(6)
-    surrogate = OdometrySurrogate(posterior, screening_trust=1.0)
-    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2, delayed_acceptance=surrogate,
-                      moves=guided_moves(posterior, surrogate), unscreened_share=0.3)
+    result, mixture = screened_run(posterior, OdometrySurrogate(posterior, screening_trust=1.0), unscreened_share=0.3)
     assert ptm.total_variation(result, exact) < TOLERANCE
-    steps = result.diagnostics["steps"]
-    assert 0.25 * steps < result.diagnostics["unscreened_steps"] < 0.35 * steps
-    assert result.diagnostics["screened_out"] > 0
+    steps = int(mixture.proposed.sum())
+    assert 0.25 * steps < mixture.unscreened < 0.35 * steps
+    assert mixture.screened_out > 0
 
 
 def test_every_step_unscreened_never_screens():
     posterior, _ = mixed_target(6)
-    surrogate = OdometrySurrogate(posterior)
-    result = ptm.mcmc(posterior, 500, seed=5, delayed_acceptance=surrogate, unscreened_share=1.0)
+    result = ptm.mcmc(posterior, 500, seed=5, moves="guided", unscreened_share=1.0, chains=1, **FIXED)
     assert result.diagnostics["unscreened_steps"] == result.diagnostics["steps"]
     assert result.diagnostics["screened_out"] == 0
-    assert result.diagnostics["surrogate"]["predictions"] == 0
 
 
-def test_no_unscreened_share_leaves_the_chain_as_it_was():
+def test_no_unscreened_share_screens_every_step():
     posterior, _ = mixed_target(6)
-    runs = [ptm.mcmc(posterior, 300, seed=3, delayed_acceptance=OdometrySurrogate(posterior), **share)
-            for share in ({}, {"unscreened_share": 0.0})]
-    np.testing.assert_array_equal(runs[0].traces["log_prob"], runs[1].traces["log_prob"])
-    assert runs[1].diagnostics["unscreened_steps"] == 0
+    result = ptm.mcmc(posterior, 300, seed=3, moves="guided", unscreened_share=0.0, chains=1, **FIXED)
+    assert result.diagnostics["unscreened_steps"] == 0 and result.diagnostics["screened_out"] > 0
 
 
 def test_without_global_terms_no_step_counts_as_unscreened(appearance_target):
     posterior, _ = appearance_target
-    result = ptm.mcmc(posterior, 300, seed=3, delayed_acceptance=True, unscreened_share=0.5)
+    result = ptm.mcmc(posterior, 300, seed=3, unscreened_share=0.5)
     assert result.diagnostics["unscreened_steps"] == 0
 
 
@@ -291,7 +325,7 @@ def test_without_global_terms_no_step_counts_as_unscreened(appearance_target):
 def test_an_unscreened_share_outside_the_unit_interval_is_refused(share):
     posterior, _ = mixed_target(6)
     with pytest.raises(ValueError, match="unscreened_share"):
-        ptm.mcmc(posterior, 10, seed=0, delayed_acceptance=True, unscreened_share=share)
+        ptm.mcmc(posterior, 10, seed=0, unscreened_share=share)
 
 
 @pytest.mark.parametrize("broken, margin", [
@@ -301,10 +335,9 @@ def test_an_unscreened_share_outside_the_unit_interval_is_refused(share):
 ], ids=["uncorrected", "reverse_prediction_dropped"])
 def test_negative_control_broken_second_stage_with_surrogate_fails(monkeypatch, broken, margin):
     posterior, exact = mixed_target(6)
-    monkeypatch.setattr(ptm.sampler, "second_stage_log_ratio", broken)
-    result = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=5, chains=2,  # a broken correction shows most in full
-                      delayed_acceptance=OdometrySurrogate(posterior, screening_trust=1.0))
-    assert ptm.total_variation(result, exact) > margin * TOLERANCE
+    monkeypatch.setattr(ptm.moves.metropolis, "second_stage_log_ratio", broken)
+    result, _ = screened_run(posterior, OdometrySurrogate(posterior, screening_trust=1.0))  # a wrong correction
+    assert ptm.total_variation(result, exact) > margin * TOLERANCE                           # shows most in full
 
 
 @pytest.mark.parametrize("trust", [0.0, -0.5, 1.5, math.nan])
@@ -369,14 +402,16 @@ class WithoutBound:
         return self.surrogate.screening_change(partition, removed, added)
 
 
-def test_the_bound_leaves_the_chain_as_it_was():
+def test_the_bound_leaves_the_chain_as_it_was(monkeypatch):
     """The first stage rejects at the bound only what it rejects at the prediction: the same seed gives the same
     chain with and without it, and the bound saved predictions."""
     posterior = loop_posterior()
     runs = []
     for wrap in (lambda surrogate: surrogate, WithoutBound):
         surrogate = OdometrySurrogate(posterior)
-        result = ptm.mcmc(posterior, 400, seed=3, init=posterior.dataset.labels, delayed_acceptance=wrap(surrogate))
+        screened_by(monkeypatch, posterior, wrap(surrogate))
+        result = ptm.mcmc(posterior, 400, burn_in=0, seed=3, chains=1, start=posterior.dataset.labels,
+                          moves="guided", unscreened_share=0.0, max_doublings=0)
         runs.append((result, surrogate.diagnostics()))
     (bounded, with_bound), (plain, without_bound) = runs
     np.testing.assert_array_equal(bounded.partitions, plain.partitions)
@@ -387,7 +422,7 @@ def test_the_bound_leaves_the_chain_as_it_was():
 
 def test_coassignment_difference_between_chains_by_hand():
     posterior = ptm.Posterior(ptm.Dataset(labels=[0, 0, 0]), ptm.PoissonPrior(2.0))
-    recorder = ptm.sampler.SampleRecorder(chains=2, n_samples=4)
+    recorder = ptm.recorder.SampleRecorder(chains=2, n_samples=4)
     for chain, visits in enumerate([[(0, 0, 1)] * 4, [(0, 0, 1)] * 2 + [(0, 1, 1)] * 2]):
         for index, labels in enumerate(visits):
             recorder.keep(chain, index, initial_state(posterior, labels))
@@ -396,69 +431,36 @@ def test_coassignment_difference_between_chains_by_hand():
     assert recorder.result("mcmc", {}).diagnostics["coassignment_max_difference"] == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize(("n", "expected"), [(GUIDED_FROM_N - 1, "default"), (GUIDED_FROM_N, "guided"), (150, "guided")])
+@pytest.mark.parametrize(("n", "expected"), [(GUIDED_FROM_N - 1, "default"), (GUIDED_FROM_N, "guided"),
+                                             (150, "guided")])
 def test_auto_moves_are_guided_from_many_detections(n, expected):
-    assert resolved_moves("auto", n) == expected
-    assert resolved_moves("paper", n) == "paper"  # a named move set is kept
+    posterior = prior_only_posterior(n)
+    assert move_set("auto", posterior).name == expected
+    assert move_set("paper", posterior).name == "paper"  # a named move set is kept
 
 
-@pytest.mark.parametrize("warm_up, moves, expected_steps", [
-    ("all", "default", ptm.sampler.WARM_UP_PER_DETECTION * 8), ("all", "paper", ptm.sampler.WARM_UP_PER_DETECTION * 8),
-    ("guided", "default", 0), ("guided", "guided", ptm.sampler.WARM_UP_PER_DETECTION * 8),
-])
-def test_every_move_set_warms_up_unless_only_guided_moves_should(warm_up, moves, expected_steps):
-    options = _sampler_options(moves, {"warm_up": warm_up, "delayed_acceptance": True, "unscreened_share": 0.05,
-                                       "map_window": "default"}, appearance_posterior(8))
-    assert options["warm_up"] == expected_steps
+def _kinds(chosen) -> set:
+    return {type(move) for move, _ in chosen.moves}
 
 
-@pytest.mark.parametrize("moves", ["default", "paper", "guided"])
-def test_every_move_set_takes_the_configured_unscreened_share(moves):
-    inference = {"warm_up": "all", "delayed_acceptance": True, "unscreened_share": 0.2, "map_window": "default"}
-    assert _sampler_options(moves, inference, appearance_posterior(8))["unscreened_share"] == 0.2
-
-
-@pytest.mark.parametrize("map_window", ["default", "all", "none"])
-@pytest.mark.parametrize("moves", ["default", "guided"])
-def test_the_map_window_is_in_the_move_sets_it_is_configured_for(moves, map_window):
-    inference = {"warm_up": "all", "delayed_acceptance": True, "unscreened_share": 0.05, "map_window": map_window}
+def test_the_default_moves_take_the_map_steered_window_where_the_posterior_has_a_screen():
     with_odometry, _ = mixed_target(6)
-    kinds = {type(move) for move, _ in _sampler_options(moves, inference, with_odometry)["moves"] or []}
-    steered = map_window == "all" or (map_window == "default" and moves == "default")
-    assert (MapWindowReallocation in kinds) == steered
-    assert (ptm.moves.WindowReallocation in kinds) == (moves == "guided" and not steered)
-    appearance_alone = _sampler_options(moves, inference, appearance_posterior(8))["moves"]
-    assert moves == "guided" or appearance_alone is None  # no map: the default moves as they were
+    chosen = move_set("default", with_odometry)
+    assert MapWindowReallocation in _kinds(chosen) and chosen.screen is None  # delayed acceptance: cheap terms
+    assert _kinds(move_set("default", appearance_posterior(8))) == {SplitMerge, GibbsReassign}  # no map: as they were
 
 
-def test_default_burn_in_is_half_the_chain_and_a_set_one_is_kept():
-    assert resolved_burn_in({"n_samples": 20000, "burn_in": None}) == 10000
-    assert resolved_burn_in({"n_samples": 20001, "burn_in": None}) == 10000
-    assert resolved_burn_in({"n_samples": 20000, "burn_in": 0}) == 0
-    assert resolved_burn_in({"n_samples": 20000, "burn_in": 2000}) == 2000
+@pytest.mark.parametrize("build", [lambda: mixed_target(6)[0], lambda: appearance_posterior(8)],
+                         ids=["odometry", "appearance"])
+def test_the_guided_moves_take_the_cheap_window_and_screen_with_the_posteriors_screen(build):
+    posterior = build()
+    chosen = move_set("guided", posterior)
+    assert _kinds(chosen) == {GuidedSplitMerge, MapReassign, GibbsReassign, WindowReallocation}
+    assert chosen.screen is posterior.screen()
 
 
-def _many_places_posterior(places: int = 30, visits: int = 2, spread: float = 0.03, noise: float = 0.005):
-    """Appearance alone, ``places`` places visited ``visits`` times each in a random order: a posterior in
-    which all detections at one place is a trap for single moves and splits (measured: 205 nats below the
-    truth, and a warm-up at inverse temperature 1 stays there)."""
-    rng = np.random.default_rng(0)
-    centres = rng.normal(0.0, spread, size=(places, 5))
-    labels = rng.permutation(np.repeat(np.arange(places), visits))
-    signatures = centres[labels] + rng.normal(0.0, noise, size=(labels.size, 5))
-    model = ptm.AppearanceModel(mu=0.0, kappa=0.01, alpha=10.0, beta=9 * noise ** 2)
-    return ptm.Posterior(ptm.Dataset(signatures=signatures, labels=labels), ptm.PoissonPrior(float(places)), [model])
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_annealed_warm_up_leaves_all_one_place(seed, monkeypatch):
-    posterior = _many_places_posterior()
-    truth = posterior.log_prob(posterior.dataset.labels)
-    all_one = (0,) * posterior.n
-    steps = ptm.sampler.WARM_UP_PER_DETECTION * posterior.n
-    warmed = ptm.sampler.warm_up_start(posterior, all_one, steps, np.random.default_rng(seed))
-    assert posterior.log_prob(warmed) > truth - 10  # measured: 3.4 below to 3.6 above
-    # Negative control: without the annealing the warm-up never leaves the start.
-    monkeypatch.setattr(ptm.sampler, "WARM_UP_FIRST_BETA", 1.0)
-    stuck = ptm.sampler.warm_up_start(posterior, all_one, steps, np.random.default_rng(seed))
-    assert posterior.log_prob(stuck) < truth - 100
+def test_the_paper_moves_are_split_merge_alone_and_a_list_is_run_as_given():
+    posterior, _ = mixed_target(6)
+    assert _kinds(move_set("paper", posterior)) == {SplitMerge}
+    custom = move_set([(SplitMerge(), 2.0)], posterior)
+    assert custom.name == "custom" and custom.screen is None and custom.moves[0][1] == 2.0

@@ -263,9 +263,9 @@ def test_weighting_the_samples_in_chunks_changes_nothing(monkeypatch):
     dataset = square_loop_dataset(100, sigma_xy=0.2, sigma_theta=0.05)
     model = ptm.OdometryModel(0.2, 0.05, 0.3, 2.5, 50.0, n_importance=100, seed=3)
     chunked = model.bind(dataset)
-    monkeypatch.setattr(ptm.odometry, "IMPORTANCE_CHUNK_BYTES", 1 << 40)
+    monkeypatch.setattr(ptm.odometry.importance, "IMPORTANCE_CHUNK_BYTES", 1 << 40)
     whole = model.bind(dataset)
-    assert len(chunked.sample_chunks) > 1 and len(whole.sample_chunks) == 1
+    assert len(chunked.sampler.sample_chunks) > 1 and len(whole.sampler.sample_chunks) == 1
     for labels in (dataset.labels, np.arange(100) % 7):
         first, second = chunked.evaluate(labels), whole.evaluate(labels)
         assert first.log_likelihood == pytest.approx(second.log_likelihood, rel=1e-12)

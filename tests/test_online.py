@@ -11,21 +11,17 @@ asserted here use seed 1, or 2 for the screened one):
 * appearance alone, N = 8 (exact entropy 2.1 nats), P = 3000, 2 rejuvenation steps: co-assignment
   0.012-0.030, TV 0.035-0.049;
 * odometry + appearance, the aliased loop of tests/test_odometry.py, N = 7 (entropy 1.75 nats), P = 1000:
-  co-assignment 0.004-0.028, TV 0.024-0.047 (with the new place evaluated exactly even where unlikely, until
-  2026-12-06: 0.006-0.038, 0.016-0.045); every option left to its screened value in the proposal
+  co-assignment 0.004-0.028, TV 0.024-0.047; every option left to its screened value in the proposal
   (``screen=1``, the new place's predicted from the shorter run): 0.009-0.026, 0.010-0.038; and the joins'
   value the cheap join estimate for every set (``FAR_OPTION_NATS`` = -inf): 0.018-0.027, 0.026-0.045;
 * the same with a tie normaliser whose area follows the dead-reckoned route of the detections so far
   (ptm.DeadReckonedTieNormaliser, sigma_topology 0.5, margin 1; exact entropy 0.14 nats), seeds 1-3:
   co-assignment 0.001-0.003, TV 0.003-0.005; its negative control, a normaliser frozen at the first
-  detection's area, seed 1: 0.26 / 0.38 (with the bounding box as the area, until 2026-12-04: entropy
-  0.09 nats, 0.001-0.003 / 0.002-0.005, control 0.19 / 0.30).
+  detection's area, seed 1: 0.26 / 0.38.
 
-Before the block move (seeds 1-10) the same runs were 0.008-0.028 / 0.032-0.051 and 0.002-0.040 /
-0.010-0.049, and the broken twin with the incremental weights left out (every particle keeps its weight,
-so the particles follow the sequence of conditionals, not the posterior) 0.165-0.202 / 0.168-0.211 away.
-
-The negative controls must exceed twice the co-assignment bound and 1.5 times the TV bound.
+The broken twin with the incremental weights left out (every particle keeps its weight, so the particles
+follow the sequence of conditionals, not the posterior) lands 0.17-0.21 away on both targets. The negative
+controls must exceed twice the co-assignment bound and 1.5 times the TV bound.
 
     python3 -m pytest -n0 -q tests/test_online.py
 """
@@ -38,7 +34,7 @@ import threadpoolctl
 
 import ptm
 import ptm.online
-from ptm.surrogate import OdometrySurrogate
+from ptm.odometry import OdometrySurrogate
 from helpers import appearance_posterior
 from test_odometry import mixed_dataset, square_loop_dataset
 

@@ -154,7 +154,7 @@ def test_energy_and_laplace_value_agree_with_a_dense_oracle_on_a_107_detection_g
 def test_the_fit_of_the_true_partition_converges_on_large_grids(n, seed):
     dataset = corridor_grid_dataset(n, seed=seed)
     graph = model().bind(dataset).graph
-    for start in (graph.dead_reckoning(), graph.aligned_start(dataset.labels), graph.chordal_start(dataset.labels)):
+    for start in (graph.dead_reckoning(), graph.chordal_start(dataset.labels)):
         fit = graph.fit(start, dataset.labels)
         assert fit.converged and fit.failure == ""
         assert fit.iterations < 60  # measured: 10-26 (the cap is 200)
@@ -176,47 +176,38 @@ def test_the_chordal_headings_are_exact_where_the_odometry_is():
     assert np.abs(wrap(relaxed - poses[1:, 2])).mean() < np.abs(wrap(dead_reckoned - poses[1:, 2])).mean()
 
 
-def test_unknown_fit_starts_are_refused_and_the_harness_lists_the_same_rules():
-    from ptm_bench.evaluation import experiment  # it lists them itself: parsing a config imports no inference
-
-    with pytest.raises(ValueError, match="fit_starts must be one of"):
-        ptm.OdometryModel(fit_starts="warm")
-    assert set(experiment.FIT_STARTS) == set(ptm.odometry.FIT_STARTS)
-    assert experiment.DEFAULTS["odometry"]["fit_starts"] == ptm.OdometryModel().fit_starts
-
-
 def in_frame_of_the_first(poses):
     """The free poses 1..N-1 of ``poses`` (N, 3) in the frame of pose 0, flattened: a state vector."""
     return relative_poses(np.broadcast_to(poses[0], poses[1:].shape), poses[1:]).ravel()
 
 
 def test_the_chordal_start_reaches_the_minimum_that_dead_reckoning_misses_on_a_208_detection_run():
-    # A simulated 14 x 14 corridor grid (ptm_bench.benchmarks.scale's second online run, seed 0: 208
-    # detections of 113 places). Its dead-reckoned heading drifts so far that a fit of the true partition from
-    # dead reckoning, with or without its positions aligned, ends in a minimum 862 nats above the one near the
-    # true poses (the rule of fit_starts = "aligned", the only one until 2026-12-06); the chordal relaxation's
-    # headings start the fit in the right basin.
+    # A simulated 14 x 14 corridor grid (208 detections of 113 places). Its dead-reckoned heading drifts so far
+    # that a fit of the true partition from dead reckoning, with or without its positions moved to their optimum
+    # given the dead-reckoned headings, ends in a minimum hundreds of nats above the one near the true poses;
+    # the chordal relaxation's headings start the fit in the right basin, and the term's fit is that one.
     recorded = np.load(Path(__file__).parent / "data" / "grid208_odometry.npz")
     dataset = ptm.Dataset(odometry=recorded["odometry"], odometry_cov=recorded["odometry_cov"])
     labels, sigma_topology = recorded["labels"], float(recorded["sigma_topology"])
     energy, log_det, _ = oracle_fit(dataset.odometry, labels, dataset.odometry_cov, sigma_topology,
                                     start=in_frame_of_the_first(recorded["true_poses"]))
-    fits = {}
-    for rule in ptm.odometry.FIT_STARTS:
-        term = ptm.OdometryModel(0.1, 0.05, sigma_topology, float(recorded["penalty_radius"]), 100.0,
-                                 fit_starts=rule).bind(dataset)
-        fits[rule] = term.fit(labels)
-        assert fits[rule].converged
-    assert fits["chordal"].energy == pytest.approx(energy, abs=1e-6)
-    assert fits["chordal"].factor.log_det() == pytest.approx(log_det, abs=1e-6)
-    assert fits["aligned"].energy > energy + 500.0  # the negative control: measured 862 nats above
+    term = ptm.OdometryModel(0.1, 0.05, sigma_topology, float(recorded["penalty_radius"]), 100.0).bind(dataset)
+    fit = term.fit(labels)
+    assert fit.converged
+    assert fit.energy == pytest.approx(energy, abs=1e-6)
+    assert fit.factor.log_det() == pytest.approx(log_det, abs=1e-6)
+    # the negative controls: the fits from dead reckoning alone (measured: 862 nats above, both)
+    graph, topology = term.graph, term.graph.topology(labels)
+    for start in (graph.dead_reckoning(), graph.positions_given_headings(graph.dead_reckoning(), topology)):
+        missed = graph.fit(start, topology)
+        assert missed.converged and missed.energy > energy + 500.0
 
 
 def test_the_fit_converges_where_the_trajectory_can_bend_almost_freely():
-    # The first 70 detections of a simulated 10 x 10 corridor grid (ptm_bench.benchmarks.scale, seed 0): long
-    # legs between places with per-step covariances up to 1.8 m^2, held by ties of sigma_T = 2 m, so the
-    # Hessian's smallest eigenvalue is 4e-10 of its largest. Before the solver's line search the damping cut
-    # the Newton steps along that bend to nothing: 200 iterations, unconverged, 1.7e-3 nats above the minimum.
+    # The first 70 detections of a simulated 10 x 10 corridor grid: long legs between places with per-step
+    # covariances up to 1.8 m^2, held by ties of sigma_T = 2 m, so the Hessian's smallest eigenvalue is 4e-10
+    # of its largest. Without the solver's line search the damping cuts the Newton steps along that bend to
+    # nothing, and the fit runs out of iterations short of the minimum.
     recorded = np.load(Path(__file__).parent / "data" / "grid70_odometry.npz")
     dataset = ptm.Dataset(odometry=recorded["odometry"], odometry_cov=recorded["odometry_cov"])
     labels, sigma_topology = recorded["labels"], float(recorded["sigma_topology"])
@@ -224,7 +215,7 @@ def test_the_fit_converges_where_the_trajectory_can_bend_almost_freely():
                              n_importance=100, seed=0).bind(dataset)
     energy, log_det, _ = oracle_fit(dataset.odometry, labels, dataset.odometry_cov, sigma_topology)
     topology = term.graph.topology(labels)
-    for start in term.starts(topology):
+    for start in term.fitter.starts(topology):
         fit = term.graph.fit(start, topology)
         assert fit.converged and fit.failure == ""
         assert fit.iterations < 100  # measured: 49 and 50
@@ -319,7 +310,7 @@ def test_a_fit_without_a_usable_hessian_gives_minus_infinity_not_nan(monkeypatch
     dataset = corridor_grid_dataset(20, seed=2)
     term = model().bind(dataset)
     nowhere = np.full(term.dimension, np.nan)
-    monkeypatch.setattr(term, "starts", lambda topology: (nowhere, nowhere))
+    monkeypatch.setattr(term.fitter, "starts", lambda topology: (nowhere, nowhere))
     assert term.log_likelihood(dataset.labels) == -math.inf
     diagnostics = term.diagnostics()
     assert diagnostics["failures"] == diagnostics["failures_minus_inf"] == 1

@@ -10,7 +10,7 @@ from ptm.diagnostics import import_arviz
 
 @pytest.fixture(scope="module")
 def sampled():
-    return ptm.mcmc(appearance_posterior(), 1_000, seed=3, chains=3)
+    return ptm.mcmc(appearance_posterior(), 1_000, seed=3, chains=3, max_doublings=0)
 
 
 def test_traces_become_an_inference_data_that_arviz_summarises(sampled):
@@ -39,7 +39,8 @@ def test_arviz_draws_the_traces(sampled):
 
 
 def test_tempered_and_loaded_ptms_convert_too(tmp_path):
-    tempered = ptm.tempered_mcmc(appearance_posterior(n=5), 200, temperatures=(1.0, 0.5), seed=1, chains=2)
+    tempered = ptm.tempered_mcmc(appearance_posterior(n=5), 200, temperatures=(1.0, 0.5), seed=1, chains=2,
+                                 max_doublings=0)
     assert dict(tempered.to_inference_data().posterior.sizes) == {"chain": 2, "draw": 200}
     loaded = ptm.PTM.load(tempered.save(tmp_path / "tempered.npz"))
     np.testing.assert_array_equal(loaded.to_inference_data().posterior["log_prob"].values,

@@ -1,11 +1,14 @@
-"""The samplers against exactly enumerated posteriors (docs/model.md §3.4-3.5).
+"""The samplers against exactly enumerated posteriors (docs/model.md §3.4-3.5), and their options.
 
-Every move must leave the posterior invariant. The check: run the chain with
-fixed seeds and bound the total variation distance between its histogram and
+Every move must leave the posterior invariant. The check: run the chains with
+fixed seeds and bound the total variation distance between their histogram and
 the exact posterior. Tolerance 0.06: with these chain lengths the correct
 samplers measured TV 0.028-0.041 (3 seeds each, prior-only N=6 and
 appearance N=8); a sampler whose Hastings ratio is dropped measured 0.24-0.63,
-so the negative control fails the same check by a wide margin.
+so the negative control fails the same check by a wide margin. The chains start
+dispersed (a prior-only posterior has nothing for an SMC pass to walk) and are
+not extended, so that each check runs a fixed number of steps, and the checks
+judge the chains' visit frequencies (:func:`visit_frequencies`).
 """
 
 import math
@@ -14,11 +17,22 @@ import numpy as np
 import pytest
 
 import ptm
+import ptm.recorder
 from helpers import appearance_posterior, prior_only_posterior
 from ptm.moves import (GibbsReassign, Proposal, SequentialSplitMerge, SplitMerge, initial_state,
                        merge_log_q_ratio, split_log_q_ratio)
+from ptm.sampler import SamplerOptions
 
 TOLERANCE = 0.06
+FIXED = {"start": "dispersed", "max_doublings": 0}  # dispersed starts, no extension
+
+
+@pytest.fixture(autouse=True)
+def visit_frequencies(monkeypatch):
+    """The exactness checks judge how often the chains visit each topology, so the recorder never renormalises
+    here: the renormalised estimate gives every visited topology its exact probability whatever the visits, and
+    a wrong Hastings ratio would then show only in which topologies the chains reached."""
+    monkeypatch.setattr(ptm.recorder, "RENORMALISE_COVERAGE", math.inf)
 
 
 class SplitMergeWithoutHastingsRatio(SplitMerge):
@@ -31,13 +45,13 @@ class SplitMergeWithoutHastingsRatio(SplitMerge):
 
 def total_variation_to_exact(posterior, moves, seed):
     exact = ptm.exact_posterior(posterior)
-    sampled = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=seed, chains=2, moves=moves)
+    sampled = ptm.mcmc(posterior, 15_000, burn_in=1_000, seed=seed, chains=2, moves=moves, **FIXED)
     return ptm.total_variation(sampled, exact)
 
 
 MOVE_SETS = {
     "split_merge": [SplitMerge()],
-    "default_mix": None,
+    "default_mix": "default",
     "sequential_split_merge": [SequentialSplitMerge()],
     "gibbs_and_split_merge": [(GibbsReassign(), 1.0), (SplitMerge(), 1.0)],
 }
@@ -70,7 +84,7 @@ def test_delayed_acceptance_with_a_global_term_is_exact():
     hidden = ptm.Posterior(base.dataset, base.prior, [AppearanceAsGlobalTerm(base.terms[0])])
     exact = ptm.exact_posterior(hidden)
     assert ptm.total_variation(exact, ptm.exact_posterior(base)) < 1e-9
-    sampled = ptm.mcmc(hidden, 15_000, burn_in=1_000, seed=3, chains=2, delayed_acceptance=True)
+    sampled = ptm.mcmc(hidden, 15_000, burn_in=1_000, seed=3, chains=2, **FIXED)  # delayed acceptance: the default
     assert ptm.total_variation(sampled, exact) < TOLERANCE
     assert sampled.diagnostics["screened_out"] > 0
 
@@ -129,7 +143,7 @@ def test_same_seed_gives_the_same_ptm_and_different_seeds_differ():
 
 
 def test_several_chains_report_convergence_diagnostics():
-    result = ptm.mcmc(appearance_posterior(), 4_000, seed=2, chains=4)
+    result = ptm.mcmc(appearance_posterior(), 4_000, burn_in=0, seed=2, chains=4, **FIXED)
     diagnostics = result.diagnostics
     assert diagnostics["rhat_log_prob"] < 1.05
     # bulk ESS of 16 000 draws (ArviZ, rank-normalised: log P takes few distinct values) measured 499;
@@ -140,26 +154,70 @@ def test_several_chains_report_convergence_diagnostics():
     assert diagnostics["block_cache"]["cache_hit_rate"] > 0.5
 
 
-def test_init_from_a_smaller_ptm_extends_its_top_topologies():
+def test_a_start_from_a_smaller_ptm_extends_its_top_topologies():
     full = appearance_posterior(n=8)
     smaller = ptm.Posterior(full.dataset.head(6), full.prior, [ptm.AppearanceModel(0.3, 0.05, 3.0, 8e-4)])
     previous = ptm.mcmc(smaller, 2_000, seed=0)
-    continued = ptm.mcmc(full, 15_000, burn_in=1_000, seed=1, chains=2, init=previous)
+    continued = ptm.mcmc(full, 15_000, burn_in=1_000, seed=1, chains=2, start=previous, max_doublings=0)
     assert continued.n == 8
     assert ptm.total_variation(continued, ptm.exact_posterior(full)) < TOLERANCE
 
 
 @pytest.mark.parametrize("kwargs, message", [
     (dict(n_samples=0), "n_samples"),
+    (dict(n_samples=math.inf), "n_samples"),
+    (dict(n_samples=math.nan), "n_samples"),
     (dict(n_samples=10, thin=0), "thin"),
     (dict(n_samples=10, chains=1.5), "chains"),
-    (dict(n_samples=10, init=[0, 1]), "init"),
+    (dict(n_samples=10, burn_in=-1), "burn_in"),
+    (dict(n_samples=10, max_doublings=math.inf), "max_doublings"),
+    (dict(n_samples=10, start=[0, 1]), "start has 2 labels"),
+    (dict(n_samples=10, start="warm"), "start must be one of smc, dispersed"),
+    (dict(n_samples=10, start=[0.5] * 8), "start must be"),
+    (dict(n_samples=10, moves="fast"), "moves must be one of auto, default, paper, guided"),
     (dict(n_samples=10, moves=[]), "at least one move"),
     (dict(n_samples=10, moves=[(SplitMerge(), -1.0)]), "weights"),
+    (dict(n_samples=10, moves=["split"]), "is not a move"),
+    (dict(n_samples=10, unscreened_share=2.0), "unscreened_share"),
 ])
-def test_sampler_rejects_bad_arguments(kwargs, message):
+@pytest.mark.parametrize("sampler", [ptm.mcmc, ptm.tempered_mcmc])
+def test_samplers_reject_bad_arguments_by_name(sampler, kwargs, message):
     with pytest.raises(ValueError, match=message):
+        sampler(appearance_posterior(), **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(n_samples=None), "n_samples"),
+    (dict(n_samples="100"), "n_samples"),
+    (dict(n_samples=10, chains="4"), "chains"),
+    (dict(n_samples=10, delayed_acceptance="yes"), "delayed_acceptance"),
+    (dict(n_samples=10, warm_up=100), "warm_up"),      # removed: the chains start from their own SMC pass
+    (dict(n_samples=10, estimate="frequency"), "estimate"),  # removed: the recorder chooses
+])
+def test_samplers_refuse_values_of_the_wrong_type_and_unknown_options_by_name(kwargs, message):
+    with pytest.raises(TypeError, match=message):
         ptm.mcmc(appearance_posterior(), **kwargs)
+
+
+def test_the_options_are_validated_once_into_a_frozen_record():
+    options = SamplerOptions(burn_in=10.0, chains=np.int64(2), start=np.array([3, 3, 5]), moves=[SplitMerge()])
+    assert (options.burn_in, options.chains, options.start) == (10, 2, (0, 0, 1))
+    assert isinstance(options.chains, int) and isinstance(options.moves, tuple)
+    with pytest.raises(AttributeError):
+        options.chains = 3
+    defaults = SamplerOptions()
+    assert (defaults.thin, defaults.chains, defaults.start, defaults.moves, defaults.delayed_acceptance,
+            defaults.unscreened_share, defaults.max_doublings) == (1, 4, "smc", "auto", True, 0.05, 2)
+    assert defaults.burn_in_for(20_000) == defaults.burn_in_for(20_001) == 10_000  # None: half the kept samples
+    assert SamplerOptions(burn_in=0).burn_in_for(20_000) == 0
+    assert SamplerOptions(burn_in=2_000).burn_in_for(20_000) == 2_000
+
+
+def test_the_defaults_run_and_report_what_they_chose():
+    result = ptm.mcmc(appearance_posterior(), 400, seed=0)
+    diagnostics = result.diagnostics
+    assert diagnostics["chains"] == 4 and diagnostics["burn_in"] == 200 and diagnostics["moves"] == "default"
+    assert diagnostics["estimate"] in ("frequency", "renormalised")
 
 
 def test_posterior_refuses_nan_from_a_term():
@@ -178,30 +236,32 @@ def test_posterior_refuses_nan_from_a_term():
 
 def test_parallel_tempering_matches_exact_posterior():
     posterior = appearance_posterior()
-    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=4)
+    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=4, chains=2,
+                               **FIXED)
     assert ptm.total_variation(result, ptm.exact_posterior(posterior)) < TOLERANCE
     assert all(0.0 < rate < 1.0 for rate in result.diagnostics["swap_acceptance"])
 
 
 def test_several_tempered_ladders_pool_and_report_convergence():
     posterior = appearance_posterior()
-    result = ptm.tempered_mcmc(posterior, 8_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=5, chains=2)
+    result = ptm.tempered_mcmc(posterior, 8_000, temperatures=(1.0, 0.5, 0.25), burn_in=500, seed=5, chains=2,
+                               **FIXED)
     assert result.diagnostics["chains"] == 2 and result.diagnostics["samples"] == 16_000
     assert result.traces["log_prob"].shape == (2, 8_000)
     assert ptm.total_variation(result, ptm.exact_posterior(posterior)) < TOLERANCE
     assert result.diagnostics["rhat_log_prob"] < 1.05
-    one = ptm.tempered_mcmc(posterior, 200, temperatures=(1.0, 0.5), seed=5)
+    one = ptm.tempered_mcmc(posterior, 200, temperatures=(1.0, 0.5), seed=5, chains=1)
     assert "rhat_log_prob" not in one.diagnostics  # a single ladder has nothing to compare with
 
 
 def test_parallel_tempering_negative_control_fails():
     posterior = appearance_posterior()
-    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5), burn_in=500, seed=4,
-                               moves=[SplitMergeWithoutHastingsRatio()])
+    result = ptm.tempered_mcmc(posterior, 15_000, temperatures=(1.0, 0.5), burn_in=500, seed=4, chains=2,
+                               moves=[SplitMergeWithoutHastingsRatio()], **FIXED)
     assert ptm.total_variation(result, ptm.exact_posterior(posterior)) > 3 * TOLERANCE
 
 
-@pytest.mark.parametrize("temperatures", [(1.0,), (0.9, 0.5), (1.0, 0.5, 0.7), (1.0, 0.0)])
+@pytest.mark.parametrize("temperatures", [(1.0,), (0.9, 0.5), (1.0, 0.5, 0.7), (1.0, 0.0), "hot", None])
 def test_parallel_tempering_rejects_bad_ladders(temperatures):
     with pytest.raises(ValueError, match="temperatures"):
         ptm.tempered_mcmc(appearance_posterior(), 10, temperatures=temperatures)

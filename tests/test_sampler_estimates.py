@@ -1,10 +1,10 @@
-"""How a sampler turns its chains into probabilities (docs/model.md §3.4): visit frequencies, the posterior
-renormalised over the visited topologies, or ``"auto"``, which renormalises only where every chain visited
-nearly all of the topologies any chain found, a chain stranded in a mode of next to no mass apart.
+"""How the samplers turn their chains into probabilities (docs/model.md §3.4, :mod:`ptm.recorder`): the
+posterior renormalised over the visited topologies where every chain visited nearly all of the topologies any
+chain found (a chain stranded in a mode of next to no mass apart), the visit frequencies otherwise.
 
 The renormalised estimate is exact on what was visited: its total variation from the exact posterior is the
 exact mass of the topologies no chain visited. On a flat posterior, where chains keep finding new topologies,
-it is biased towards the best of them (the negative control), and ``"auto"`` keeps the frequencies there.
+it is biased towards the best of them (the negative control), and the recorder keeps the frequencies there.
 """
 
 import dataclasses
@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import ptm
+import ptm.recorder
 from ptm.moves import initial_state
 
 
@@ -35,46 +36,41 @@ def _unvisited_mass(result, exact) -> float:
     return float(sum(p for row, p in zip(exact.partitions, exact.probabilities) if tuple(row) not in visited))
 
 
-def test_the_renormalised_estimate_is_off_by_exactly_the_mass_never_visited():
+def _renormalised(result, posterior) -> ptm.PTM:
+    """``result``'s topologies with their posterior probabilities renormalised over them."""
+    log_probs = np.array([posterior.log_prob(labels) for labels in result.partitions])
+    return ptm.PTM(result.partitions, np.exp(log_probs - log_probs.max()), "renormalised")
+
+
+def test_a_peaked_posterior_is_renormalised_off_by_exactly_the_mass_never_visited():
     posterior = _peaked_posterior()
     exact = ptm.exact_posterior(posterior)
-    result = ptm.mcmc(posterior, 3_000, burn_in=300, seed=2, chains=4, estimate="renormalised")
+    result = ptm.mcmc(posterior, 3_000, burn_in=300, seed=2, chains=4)
+    assert result.diagnostics["estimate"] == "renormalised" and result.diagnostics["chain_coverage_min"] >= 0.99
     missed = _unvisited_mass(result, exact)
     assert 0 < missed < 0.01  # some mass unvisited, so the identity below is not 0 == 0
     assert ptm.total_variation(result, exact) == pytest.approx(missed, abs=1e-9)
-    frequency = ptm.mcmc(posterior, 3_000, burn_in=300, seed=2, chains=4)
-    assert ptm.total_variation(frequency, exact) > ptm.total_variation(result, exact)
 
 
-def test_auto_renormalises_a_peaked_posterior_and_keeps_frequencies_on_a_flat_one():
-    peaked = ptm.mcmc(_peaked_posterior(), 3_000, burn_in=300, seed=2, chains=4, estimate="auto")
-    assert peaked.diagnostics["estimate"] == "renormalised" and peaked.diagnostics["chain_coverage_min"] >= 0.99
+def test_a_flat_posterior_keeps_the_frequencies():
     flat = _flat_posterior()
     exact = ptm.exact_posterior(flat)
     assert exact.entropy() > 5
-    auto = ptm.mcmc(flat, 2_000, burn_in=200, seed=2, chains=4, estimate="auto")
-    assert auto.diagnostics["estimate"] == "frequency" and auto.diagnostics["chain_coverage_min"] < 0.9
-    renormalised = ptm.mcmc(flat, 2_000, burn_in=200, seed=2, chains=4, estimate="renormalised")
+    result = ptm.mcmc(flat, 2_000, burn_in=200, seed=2, chains=4, start="dispersed", max_doublings=0)
+    assert result.diagnostics["estimate"] == "frequency" and result.diagnostics["chain_coverage_min"] < 0.9
 
-    def coassignment_error(result):
-        return float(np.abs(result.coassignment() - exact.coassignment()).max())
+    def coassignment_error(estimate):
+        return float(np.abs(estimate.coassignment() - exact.coassignment()).max())
 
     # The negative control: renormalising the visited few of many topologies favours the best found.
-    assert coassignment_error(auto) < 0.05 < 0.1 < coassignment_error(renormalised)
+    assert coassignment_error(result) < 0.05 < 0.1 < coassignment_error(_renormalised(result, flat))
 
 
-def test_chains_are_judged_on_the_estimate_used():
-    frequency = ptm.mcmc(_peaked_posterior(), 3_000, burn_in=300, seed=2, chains=4)
-    renormalised = ptm.mcmc(_peaked_posterior(), 3_000, burn_in=300, seed=2, chains=4, estimate="renormalised")
-    assert renormalised.diagnostics["rhat_log_prob"] == frequency.diagnostics["rhat_log_prob"]  # same chains
-    assert renormalised.diagnostics["coassignment_max_difference"] < frequency.diagnostics["coassignment_max_difference"]
-
-
-def _recorded(stray_log_prob: float, strays: int = 1) -> ptm.sampler.SampleRecorder:
+def _recorded(stray_log_prob: float, strays: int = 1) -> ptm.recorder.SampleRecorder:
     """Four chains of 100 samples: the first 4 - ``strays`` alternate between topologies A (log P 0) and B
     (log P -1), the others never leave C (log P ``stray_log_prob``)."""
     posterior = _peaked_posterior()
-    recorder = ptm.sampler.SampleRecorder(4, 100, estimate="auto")
+    recorder = ptm.recorder.SampleRecorder(4, 100)
     states = {}
     for name, labels, log_prob in (("A", (0, 1, 0, 1, 2, 0, 3), 0.0), ("B", (0, 1, 0, 1, 2, 3, 4), -1.0),
                                    ("C", (0, 0, 1, 1, 2, 3, 4), stray_log_prob)):
@@ -117,15 +113,3 @@ def test_one_chain_above_three_strays_is_no_evidence():
     result = _recorded(stray_log_prob=-50.0, strays=3).result("mcmc", {})
     assert result.diagnostics["estimate"] == "frequency" and result.diagnostics["stray_chains"] == 3
     assert _recorded(stray_log_prob=-50.0, strays=2).result("mcmc", {}).diagnostics["estimate"] == "renormalised"
-
-
-@pytest.mark.parametrize("sampler", [ptm.mcmc, ptm.tempered_mcmc])
-def test_an_unknown_estimate_is_refused_by_name(sampler):
-    with pytest.raises(ValueError, match="estimate must be one of frequency, renormalised, auto, got 'mean'"):
-        sampler(_peaked_posterior(), 10, estimate="mean")
-
-
-def test_the_harness_offers_exactly_the_samplers_estimates():
-    from ptm_bench.evaluation import experiment
-
-    assert set(experiment.ESTIMATES) == set(ptm.sampler.ESTIMATES)

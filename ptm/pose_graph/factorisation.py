@@ -150,7 +150,8 @@ class BandedLowRankFactor:
         return self._triangular_solve(whitened, transpose=True).reshape(np.shape(rhs))
 
     def log_det(self) -> float:
-        return 2.0 * float(np.sum(np.log(self.band_factor[BAND_DIAGONAL])) + np.sum(np.log(np.diag(self.capacitance_factor))))
+        return 2.0 * float(np.sum(np.log(self.band_factor[BAND_DIAGONAL]))
+                           + np.sum(np.log(np.diag(self.capacitance_factor))))
 
     def sample(self, noise_columns) -> tuple[np.ndarray, np.ndarray]:
         """Offsets delta_s ~ N(0, H^-1) as columns (d, S) from standard normal ``noise_columns``

@@ -151,7 +151,8 @@ class StepInformation:
         self._quadratic_terms = [(a, b, (1.0 if a == b else 2.0) * self.information[:, a, b])
                                  for a in range(3) for b in range(a, 3) if np.any(self.information[:, a, b])]
         terms = self._quadratic_terms
-        self._term_components = (np.array([a for a, _, _ in terms], dtype=int), np.array([b for _, b, _ in terms], dtype=int))
+        self._term_components = (np.array([a for a, _, _ in terms], dtype=int),
+                                 np.array([b for _, b, _ in terms], dtype=int))
         self._term_coefficients = np.array([c for _, _, c in terms]).reshape(len(terms), len(self.information))
 
     def energy(self, residuals) -> np.ndarray:

@@ -9,10 +9,10 @@ eq. 3, 13-14). For a partition T the energy over the free poses is
 minimiser P* is found by damped Newton steps with analytic derivatives
 (:class:`Linearisation`); the Gauss-Newton Hessian H = J^T W J + H_T at P*,
 factorised with the structure of :mod:`ptm.pose_graph.factorisation`,
-defines the Laplace proposal N(P*, H^-1). The starts are dead reckoning
-(:func:`ptm.se2.dead_reckoning`) and two corrections of it that depend on the
-partition alone: the chordal relaxation's headings (:meth:`PoseGraph.chordal_start`)
-and the dead-reckoned headings with aligned positions (:meth:`PoseGraph.aligned_start`).
+defines the Laplace proposal N(P*, H^-1). The starts the odometry model fits
+from (:mod:`ptm.odometry.laplace`) are dead reckoning (:func:`ptm.se2.dead_reckoning`)
+and a correction of it that depends on the partition alone, the chordal
+relaxation's headings with their optimal positions (:meth:`PoseGraph.chordal_start`).
 
     >>> import numpy as np
     >>> from ptm.pose_graph import odometry_sqrt_information
@@ -204,11 +204,6 @@ class PoseGraph:
         """The state that composes the odometry rows exactly (zero odometry energy): :func:`ptm.se2.dead_reckoning`."""
         return se2.dead_reckoning(self.odometry)[1:].ravel()
 
-    def aligned_start(self, partition) -> np.ndarray:
-        """Dead reckoning with the positions moved to their optimum given the dead-reckoned headings
-        (:meth:`positions_given_headings`). A start that depends on the partition only."""
-        return self.positions_given_headings(self._dead_reckoning, partition)
-
     def chordal_start(self, partition) -> np.ndarray:
         """The headings of the chordal relaxation (:func:`ptm.pose_graph.chordal.chordal_headings`) and the
         positions at their optimum given those headings (:meth:`positions_given_headings`): two sparse
@@ -243,7 +238,7 @@ class PoseGraph:
         """E at the state ``x`` under ``partition`` (labels or a :meth:`topology`), and its derivatives."""
         topology = partition if isinstance(partition, TopologyHessian) else self.topology(partition)
         x = np.asarray(x, dtype=float)
-        # the aligned start is linearised at dead reckoning, whose odometry part is remembered
+        # every partition's fit from dead reckoning starts there: its odometry part is remembered
         at_dead_reckoning = self._at_dead_reckoning if np.array_equal(x, self._dead_reckoning) else None
         return Linearisation(self, x, topology, at_dead_reckoning)
 
@@ -273,7 +268,7 @@ class PoseGraph:
         only linearly on the large residuals of an implausible topology, and
         samplers propose many of those. After an
         accepted step the same factor is reused once for a second
-        (chord) step, about 15 % fewer factorisations on benchmark routes. Once a
+        (chord) step, which saves factorisations. Once a
         Newton step is below ``close_tolerance`` the Gauss-Newton Hessian -- the
         one docs/model.md §3.3 defines the Laplace proposal with -- is factorised; the
         fit is converged when its step is below ``step_tolerance`` in every
@@ -385,9 +380,9 @@ class PoseGraph:
     def _backtracked(self, point: Linearisation, step, topology: TopologyHessian):
         """(the shortened step, its Linearisation) for the first share in ``BACKTRACKING`` of ``step`` that
         lowers E from ``point``, or None. Along a nearly flat direction of E (a trajectory bending where
-        only weak ties hold it: the Hessian's smallest eigenvalue is 4e-10 of its largest on a 70-detection
-        grid) the Newton step is right in direction but too long, and the damping that would shorten it
-        suppresses that direction altogether: without this, fits there crept for hundreds of iterations."""
+        only weak ties hold it, the Hessian's smallest eigenvalue orders of magnitude below its largest)
+        the Newton step is right in direction but too long, and the damping that would shorten it
+        suppresses that direction altogether: fits there would creep for hundreds of iterations."""
         energy = point.energy
         for share in BACKTRACKING:
             candidate = Linearisation(self, point.x + share * step, topology)

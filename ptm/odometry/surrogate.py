@@ -1,11 +1,12 @@
-"""A cheap surrogate of the odometry term: how a move changes log P(O | T), predicted from the current map.
+"""The screen of the odometry terms: how a move changes log P(O | T), predicted from the current map.
 
 Implements the first stage of delayed acceptance with a surrogate (docs/model.md §3.4; Christen & Fox
-2005). The Laplace fit of the current partition T -- the mode P* and the Gauss-Newton Hessian H that
-define log P(O | T) (paper eq. 3, 13-14; docs/model.md §3.3, step 1) -- is a Gaussian over the poses,
-Q = N(P*, H^-1), and the positions z of the detections a move touches are z ~ N(mu, S) under it. A move
-that replaces some sets by others over the same detections changes the pose-graph energy by the ties of
-the sets it adds minus those of the sets it removes, an exact quadratic in z:
+2005) and the map estimates that steer the map-guided moves. The Laplace fit of the current partition T --
+the mode P* and the Gauss-Newton Hessian H that define log P(O | T) (paper eq. 3, 13-14; docs/model.md §3.3,
+step 1) -- is a Gaussian over the poses, Q = N(P*, H^-1), and the positions z of the detections a move
+touches are z ~ N(mu, S) under it. A move that replaces some sets by others over the same detections
+changes the pose-graph energy by the ties of the sets it adds minus those of the sets it removes, an exact
+quadratic in z:
 
     Delta E(P) = 1/2 z^T M z,      M = (L_added - L_removed) / sigma_T^2  (on x and on y),
 
@@ -26,13 +27,17 @@ The prediction is
     s_T(T') = log E_Q[exp(-Delta E)] + sum_pairs' log E'[exp(-f)] - sum_pairs log E[exp(-f)],
 
 updated only for the pairs with a detection of the move. It is a deterministic function of (T, T'): P*
-is the history-free mode of :meth:`ptm.odometry.OdometryTerm.laplace_mode` and H is rebuilt there, so
-the sampler's two-stage acceptance stays exact whatever the prediction's error (the second stage
-corrects it). Terms other than the odometry term are predicted not to change. On a nearly linear pose
-graph without penalty the prediction equals the change of the Laplace value (tests/test_guided_sampling.py);
-near the ground truth of a 29-detection corridor grid it correlates at 0.995 with the change of the
-estimate. It cannot follow the importance-sampling part of implausible partitions, whose estimate
-rests on one or two of the samples (ESS 1-2 of 100) and lies 15-45 nats below its Laplace value.
+is the history-free mode of the term's Laplace fit (:mod:`ptm.odometry.laplace`) and H is rebuilt there,
+so the sampler's two-stage acceptance stays exact whatever the prediction's error (the second stage
+corrects it). On a nearly linear pose graph without penalty the prediction equals the change of the
+Laplace value. It cannot follow the importance-sampling part of implausible partitions, whose estimate
+rests on a few of the samples and lies well below its Laplace value.
+
+The terms it predicts are the posterior's global terms that expose their Laplace fit: ``laplace_mode(partition)``
+(P*, or None where the fit has no Gaussian), ``graph`` (the :class:`ptm.pose_graph.PoseGraph`), ``n`` and
+``model`` (with ``sigma_topology``, ``penalty_radius`` and ``max_penalty``) -- the odometry terms. Other global
+terms are predicted not to change. A posterior gets this screen from its odometry term
+(:meth:`ptm.odometry.OdometryTerm.screen`).
 
     >>> import numpy as np
     >>> from ptm import Dataset, OdometryModel, PoissonPrior, Posterior
@@ -56,10 +61,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._cache import BoundedCache
-from .odometry import OdometryTerm
-from .partitions import Partition
-from .pose_graph import poses_from_vector
+from .._cache import BoundedCache
+from ..partitions import Partition
+from ..pose_graph import poses_from_vector
 
 __all__ = ["OdometrySurrogate", "MapEstimate", "ConditionedMap"]
 
@@ -98,13 +102,8 @@ class MapEstimate:
     given_back: np.ndarray  # (N,): minus the sum of each detection's penalty terms (>= 0)
     _last_tie: list = field(default_factory=lambda: [None, None], compare=False, repr=False)  # [move, its tie]
 
-    @property
-    def log_likelihood(self) -> float:
-        """The surrogate's own value of log P(O | T): the Laplace value plus the pairs' penalty terms."""
-        return self.laplace + float(np.sum(self.penalty_terms))
-
     @classmethod
-    def of(cls, term: OdometryTerm, partition: Partition) -> "MapEstimate | None":
+    def of(cls, term, partition: Partition) -> "MapEstimate | None":
         """The estimate of ``partition`` under ``term``; None where its log-likelihood is -inf (no Gaussian)."""
         mode = term.laplace_mode(partition)
         if mode is None:
@@ -199,7 +198,7 @@ class MapEstimate:
 
         The penalty terms are <= 0 before and after (log E[exp(-f)], f >= 0), and the prediction drops only
         terms of such pairs, so it gains at most these. A first stage that rejects the move at this bound
-        rejects it at the prediction too (:func:`ptm.sampler.metropolis_step`); the tie is kept for the
+        rejects it at the prediction too (the first stage of delayed acceptance); the tie is kept for the
         prediction that may follow.
         """
         tie = self._gaussian_tie(removed, added)
@@ -239,7 +238,7 @@ class MapEstimate:
         return -0.5 * log_det - 0.5 * float(mean @ gain @ mean), members, gain
 
 
-def _position_gaussian(term: OdometryTerm, partition: Partition, mode: np.ndarray):
+def _position_gaussian(term, partition: Partition, mode: np.ndarray):
     """The positions' mean (N, 2) and covariance (2N, 2N; x_0, y_0, x_1, ...) under N(P*, H^-1) at the
     Laplace mode ``mode`` of ``partition``, and the Laplace value there (docs/model.md §3.3, step 1)."""
     graph = term.graph
@@ -328,7 +327,7 @@ def _penalised_area(penalty_radius: float, max_penalty: float) -> float:
 
 class ConditionedMap:
     """The positions of a map estimate, conditioned on ties one at a time: where the detections of a window
-    are likely to be once some of them have joined their places (:class:`ptm.moves.MapWindowReallocation`).
+    are likely to be once some of them have joined their places (the map-steered window move, docs/model.md §3.4).
 
     Under each odometry term's Gaussian N(mu, C) of the positions (:class:`MapEstimate`), a tie of detection
     i to detection m is the observation t_i - t_m = 0 with noise sigma_T^2 I, and conditioning on it is a
@@ -358,7 +357,8 @@ class ConditionedMap:
             positions, blocks = mean.reshape(n, 2), covariance.reshape(n, 2, n, 2)
             separations = positions[detection] - positions[members]
             cross = blocks[detection, :, members, :]  # (k, 2, 2): Cov(t_i, t_m)
-            spread = blocks[detection, :, detection, :] + blocks[members, :, members, :] - cross - cross.transpose(0, 2, 1)
+            spread = (blocks[detection, :, detection, :] + blocks[members, :, members, :]
+                      - cross - cross.transpose(0, 2, 1))
             ties += _tie_changes(separations, spread, sigma)
             given_back -= np.add.reduceat(_pair_log_expectations(separations, spread, radius, max_penalty), starts)
         best = np.maximum.reduceat(ties, starts)
@@ -398,10 +398,10 @@ class OdometrySurrogate:
 
     ``predicted_change(partition, removed, added)`` is the sum over the posterior's odometry terms of
     :meth:`MapEstimate.predicted_change` (0 for other global terms, and for a partition whose odometry
-    log-likelihood is -inf). Pass it as ``delayed_acceptance`` of :func:`ptm.mcmc` or
-    :func:`ptm.tempered_mcmc`. Map estimates are memoised per partition (``MAP_ESTIMATES_KEPT``) and
-    predictions per partition and proposal (``predictions_kept``): a chain near a mode proposes the same
-    moves again and again.
+    log-likelihood is -inf). It is the posterior's screen (``Posterior.screen()``, built by
+    :meth:`ptm.odometry.OdometryTerm.screen`), which delayed acceptance and the map-guided moves read. Map
+    estimates are memoised per partition (``MAP_ESTIMATES_KEPT``) and predictions per partition and proposal
+    (``predictions_kept``): a chain near a mode proposes the same moves again and again.
     """
 
     def __init__(self, posterior, estimates_kept: int = MAP_ESTIMATES_KEPT, predictions_kept: int = 100_000,
@@ -409,12 +409,11 @@ class OdometrySurrogate:
         if not 0.0 < screening_trust <= 1.0:
             raise ValueError(f"screening_trust must lie in (0, 1], got {screening_trust!r}")
         self.screening_trust = float(screening_trust)
-        self.terms = [term for term in posterior.global_terms if isinstance(term, OdometryTerm)]
+        self.terms = [term for term in posterior.global_terms if hasattr(term, "laplace_mode")]
         self._predicts_every_global_term = len(self.terms) == len(posterior.global_terms)
         self._estimates = BoundedCache(estimates_kept)
         self._gaussians = BoundedCache(OPEN_MAPS_KEPT)
         self._predictions = BoundedCache(predictions_kept)
-        self._approximations = BoundedCache(predictions_kept)
         self._seconds = 0.0
         self._bounds = 0
 
@@ -518,18 +517,6 @@ class OdometrySurrogate:
         out more and so costs fewer odometry evaluations (the online mapper's few rejuvenation steps).
         """
         return self.screening_trust * self.predicted_change(partition, removed, added)
-
-    def approximate_log_likelihood(self, partition: Partition) -> float:
-        """The surrogate's own value of the odometry terms for ``partition`` (:attr:`MapEstimate.log_likelihood`;
-        -inf where a term has no Gaussian): smoother than the importance-sampling estimate where that rests on
-        a few samples, which makes it a target for warming chains up (:func:`ptm.sampler.warm_up_start`)."""
-        value = self._approximations.get(partition)
-        if value is None:
-            estimates = self.map_estimates(partition)
-            value = (-math.inf if any(estimate is None for estimate in estimates)
-                     else float(sum(estimate.log_likelihood for estimate in estimates)))
-            self._approximations.put(partition, value)
-        return value
 
     def diagnostics(self) -> dict:
         """Predictions made and reused, map estimates built, the mean time of a prediction made [ms], and the
