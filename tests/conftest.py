@@ -1,7 +1,9 @@
-"""Test configuration: headless rendering, single-threaded BLAS and the shared helpers on the import path."""
+"""Test configuration: headless rendering, single-threaded BLAS, nothing written outside the test's own folders,
+and the shared helpers on the import path."""
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -12,4 +14,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # xdist's workers inherit it); a value the user set is kept.
 for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(variable, "1")
+# matplotlib's font cache goes to a temporary folder, not the user's home (a test stays inside its environment)
+os.environ.setdefault("MPLCONFIGDIR", tempfile.mkdtemp(prefix="ptm-tests-matplotlib-"))
 sys.path.insert(0, str(Path(__file__).parent))

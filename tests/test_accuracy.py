@@ -1,19 +1,12 @@
 """Accuracy checks on small, fast configurations of the full pipeline (simulator -> PTM -> scores).
 
 One module-level sweep runs every configuration below once; each test reads
-its cells. The thresholds were set from runs of exactly these settings over
-eight seeds (0-7), recorded in each test's docstring (``run_conditions(folder,
-seeds=range(8))`` repeats them, 4 minutes on two cores on 2026-12-06); CI runs the
-first three seeds, and every threshold leaves room for a bad seed among them.
-
-Measured with the decor simulator (``GENERATOR_VERSION`` 3) and the harness's defaults of 2026-12-06 (ties of
-sd r / sqrt 2, normalised; every chain warmed up; rare outlier visits in appearance; the map-steered window in
-the default moves, ``inference.map_window``). These configurations sample with plain MCMC (four chains of
-3 000 steps, doubled up to twice where they disagree). Before the map-steered window the chains of most of
-these runs disagreed, and what looked like uncertainty (odometry alone 0.15-0.69 on nested_loops at noise 1;
-truth 0.19-0.54 and entropy 1.92 nats at aliasing 1 with appearance) was chains left at all-distinct or
-elsewhere: with it, the chains agree in 54 of 56 runs (not in odometry alone on nested_loops seed 1, whose odometry is the
-same at both aliasing levels) and odometry at noise 1 pins nested_loops' loops. The sweeps
+its cells. The thresholds were set from runs of these settings over eight
+seeds (0-7), recorded in each test's docstring (``run_conditions(folder,
+seeds=range(8))`` repeats them); CI runs the first three seeds, and every
+threshold leaves room for a bad seed among them. The configurations sample
+with the harness's defaults (docs/model.md §3.4, §6) but for their length:
+four chains of 3 000 steps, doubled up to twice where they disagree. The sweeps
 in ``experiments/`` use exact posteriors or tempering instead.
 """
 
@@ -109,9 +102,7 @@ def test_at_moderate_noise_odometry_finds_the_loops_and_appearance_never_lowers_
     """nested_loops, aliasing 0, noise 1.0.
 
     Measured, seeds 0-7: odometry alone 0.999 0.736 0.997 1.000 1.000 1.000 0.998 1.000 (mean 0.966; seed 1's
-    chains disagree and its row warns); odometry + appearance 1.00 on every seed. Before the map-steered
-    window odometry alone gave 0.69 0.15 0.16 0.58 0.38 0.54 0.68 0.26 (mean 0.429), its chains stuck.
-    Thresholds: odometry alone's mean over the CI seeds above 0.7 (seeds 0-2: 0.911), and odometry +
+    chains disagree and its row warns); odometry + appearance 1.00 on every seed. Thresholds: odometry alone's mean over the CI seeds above 0.7 (seeds 0-2: 0.911), and odometry +
     appearance above 0.95 and not below odometry alone on any of them.
     """
     table = tables["nested_moderate_noise"]
@@ -125,9 +116,7 @@ def test_aliased_appearance_does_not_mislead_the_odometry(tables):
     truth keeps the mass odometry gives it, however alike the places look.
 
     Measured, seeds 0-7: 0.999 0.996 0.997 1.000 1.000 1.000 0.999 1.000 (entropy 0.00-0.03 nats), against
-    odometry alone's 0.999 0.736 0.997 1.000 1.000 1.000 0.998 1.000; chains agree in every run. (Until the
-    map-steered window this test asserted the opposite, an entropy at aliasing 1 above that at aliasing 0 by
-    0.3 nats: measured 1.92, which was chains disagreeing in 8 of 8 runs.) Threshold: the mean over the CI
+    odometry alone's 0.999 0.736 0.997 1.000 1.000 1.000 0.998 1.000; chains agree in every run. Threshold: the mean over the CI
     seeds above 0.9 and at least odometry alone's mean minus 0.05 (seeds 0-2: 0.997 against 0.911).
     """
     table = tables["nested_moderate_noise"]
@@ -138,10 +127,9 @@ def test_aliased_appearance_does_not_mislead_the_odometry(tables):
 def test_fully_aliased_appearance_does_not_help_on_congruent_places(tables):
     """short_loop (four congruent corners), aliasing 1, noise 1.0, maximum penalty 50.
 
-    Measured, seeds 0-7: odometry alone and odometry + appearance 1.00 on every seed (before the
-    map-steered window odometry + appearance gave 0.46 on seed 3, and with the paper's appearance model
-    0.27 1.00 1.00 0.37 0.33 1.00 1.00 1.00): with one shared decor, appearance cannot help, and it must
-    not favour merging the corners. Threshold: odometry + appearance is not above odometry alone by more
+    Measured, seeds 0-7: odometry alone and odometry + appearance 1.00 on every seed (with the paper's
+    appearance model, no outlier visits, 0.27 1.00 1.00 0.37 0.33 1.00 1.00 1.00): with one shared decor,
+    appearance cannot help, and it must not favour merging the corners. Threshold: odometry + appearance is not above odometry alone by more
     than 0.05 on average (seeds 0-2: 0.00).
     """
     table = tables["short_loop_aliased"]

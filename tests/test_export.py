@@ -251,7 +251,7 @@ def test_a_second_export_replaces_the_files_and_leaves_no_temporary(tmp_path):
 # -- the command line -----------------------------------------------------------------------------------------
 
 def test_cli_exports_labels_and_a_saved_ptms_map(tmp_path, capsys):
-    dataset_path = _loop_dataset().save(tmp_path / "loop.npz")
+    dataset_path = _loop_dataset(detection_radius=0.5).save(tmp_path / "loop.npz")
     by_labels = tmp_path / "by_labels"
     assert main(["export", str(dataset_path), "--labels", ",".join(map(str, LABELS)), "--out", str(by_labels),
                  "--sigma-topology", str(SIGMA_TOPOLOGY)]) == 0
@@ -274,16 +274,23 @@ def test_cli_exports_labels_and_a_saved_ptms_map(tmp_path, capsys):
 @pytest.mark.parametrize("arguments, message", [
     (["--labels", "0,1,0"], "has 9 labels, got 3"),
     (["--labels", "0,one,0"], "--labels: expected integers"),
-    (["--labels", "0,1,2,3,0,1,2,3,0", "--sigma-topology", "-1"], "sigma_topology must be a finite positive"),
+    (["--labels", "0,1,2,3,0,1,2,3,0", "--sigma-topology", "-1"], "sigma_topology must be a positive number, got -1"),
 ])
 def test_cli_names_a_bad_topology(tmp_path, capsys, arguments, message):
-    dataset_path = _loop_dataset().save(tmp_path / "loop.npz")
+    dataset_path = _loop_dataset(detection_radius=0.5).save(tmp_path / "loop.npz")
     assert main(["export", str(dataset_path), *arguments, "--out", str(tmp_path / "out")]) == 2
     assert message in capsys.readouterr().err
 
 
 def test_cli_refuses_a_ptm_over_other_detections(tmp_path, capsys):
-    dataset_path = _loop_dataset().save(tmp_path / "loop.npz")
+    dataset_path = _loop_dataset(detection_radius=0.5).save(tmp_path / "loop.npz")
     result = ptm.PTM([[0, 1, 0]], [1.0], "exact").save(tmp_path / "result.npz")
     assert main(["export", str(dataset_path), "--ptm", str(result), "--out", str(tmp_path / "out")]) == 2
     assert "is over 3 detections, the dataset" in capsys.readouterr().err
+
+
+def test_cli_without_the_detectors_radius_asks_for_it(tmp_path, capsys):
+    """The default tie is the detector's radius / sqrt 2, as in a sweep: a dataset without the radius is refused."""
+    dataset_path = _loop_dataset().save(tmp_path / "loop.npz")
+    assert main(["export", str(dataset_path), "--labels", "truth", "--out", str(tmp_path / "out")]) == 2
+    assert "no 'detection_radius'" in capsys.readouterr().err

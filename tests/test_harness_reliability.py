@@ -6,7 +6,7 @@ Cell functions here are tiny fakes (tests/sweep_fakes.py), so every test takes s
 
 import pytest
 
-from ptm_bench.evaluation import experiment
+from ptm_bench.evaluation import experiment, settings
 
 BASE = '[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n'
 
@@ -23,15 +23,21 @@ def load(tmp_path, text, name="tiny.toml"):
     (BASE + '[inference]\nn_samples = "100"\n', r"inference\.n_samples must be a positive integer, got '100'"),
     (BASE + '[inference]\nn_samples = 0\n', r"inference\.n_samples must be a positive integer"),
     (BASE + '[inference]\nchains = 2.5\n', r"inference\.chains must be a positive integer"),
-    (BASE + '[inference]\ndelayed_acceptance = "no"\n', r"inference\.delayed_acceptance must be true or false, got 'no'"),
+    (BASE + '[inference]\nmoves = "fast"\n', r"inference\.moves must be one of 'auto', 'default', 'paper', 'guided', "
+                                              r"got 'fast'"),
+    (BASE + '[inference]\nburn_in = 1.5\n', r"inference\.burn_in must be a non-negative integer, got 1\.5"),
     (BASE + '[inference]\ntemperatures = [0.5, 1.0]\n', r"inference\.temperatures must be a list of inverse temperatures"),
     (BASE + '[inference]\nprior_rate = -1\n', r"inference\.prior_rate must be a positive number"),
     (BASE + '[odometry]\nmax_penalty = -5\n', r"odometry\.max_penalty must be a non-negative number, got -5"),
     (BASE + '[odometry]\nsigma_xy = "0.1"\n', r"odometry\.sigma_xy must be a positive number"),
     (BASE + '[appearance]\ncomponents = true\n', r"appearance\.components must be a positive integer"),
     (BASE + '[[variants]]\nname = "v"\nmodels = ["odometry"]\ninference = { burn_in = -1 }\n',
-     r"variant 'v': inference\.burn_in must be a non-negative integer"),
-    (BASE + '[sweep.generator_options]\ncolour = 3\n', r"unknown key 'colour' in sweep\.generator_options"),
+     r"variants\['v'\]\.inference\.burn_in must be a non-negative integer"),
+    (BASE + '[appearance]\nmodel = "joint"\nevidence = "paper_eq19"\n',
+     r"appearance\.evidence = 'paper_eq19' needs appearance\.model = 'independent'"),
+    (BASE + '[[variants]]\nname = "v"\nmodels = ["appearance"]\nappearance = { model = "joint", outliers = true }\n',
+     r"variants\['v'\]\.appearance\.outliers = true exists for appearance\.model = 'independent'"),
+    (BASE + '[sweep.generator_options]\ncolour = 3\n', r"sweep\.generator_options\.colour is an unknown key"),
     (BASE + '[sweep.generator_options]\nmiss_rate = "0.1"\n', r"sweep\.generator_options\.miss_rate must be a float"),
     ('name = "../../elsewhere"\n' + BASE, r"name must be a folder name .* got '\.\./\.\./elsewhere'"),
     ('name = "a/b"\n' + BASE, r"name must be a folder name"),
@@ -44,9 +50,84 @@ def test_bad_config_values_are_refused_at_load_naming_the_key(tmp_path, bad, mes
 
 def test_good_values_and_generator_options_still_load(tmp_path):
     config = load(tmp_path, 'name = "ok_1.2"\n' + BASE + '[sweep.generator_options]\nmiss_rate = 0\nroute = "main"\n'
-                  '[inference]\nn_samples = 10\ndelayed_acceptance = false\n[odometry]\nmax_penalty = 0\n')
+                  '[inference]\nn_samples = 10\n[odometry]\nmax_penalty = 0\n[appearance]\nmodel = "joint"\n')
     assert config.name == "ok_1.2"
-    assert config.settings["inference"]["delayed_acceptance"] is False
+    assert config.settings.inference.n_samples == 10 and config.settings.odometry.max_penalty == 0.0
+    assert config.settings.appearance.outliers is False  # "auto": the joint model has no outlier visits
+    assert config.variants[0].appearance.outliers is False and config.variants[0].inference.n_samples == 10
+
+
+@pytest.mark.parametrize("section, key", [(section, key) for section, keys in settings.REMOVED_KEYS.items()
+                                          for key in keys])
+def test_a_removed_key_is_refused_with_its_path_and_the_tag(tmp_path, section, key):
+    """The keys that pinned old modes were removed; a config that sets one is told so, in a section and in a
+    variant, not that the key is unknown."""
+    for text, path in [(BASE + f"[{section}]\n{key} = 1\n", f"{section}.{key}"),
+                       (BASE + f'[[variants]]\nname = "v"\nmodels = ["odometry"]\n{section} = {{ {key} = 1 }}\n',
+                        f"variants['v'].{section}.{key}")]:
+        with pytest.raises(ValueError) as refused:
+            load(tmp_path, text)
+        assert str(refused.value).startswith(f"{tmp_path / 'tiny.toml'}: {path} was removed; it pinned an old mode (")
+        assert str(refused.value).endswith("see the tag results-2026-12-06")
+
+
+@pytest.mark.parametrize("text, path", [
+    ('colour = 1\n' + BASE, "colour"),
+    (BASE + "colour = 1\n", "sweep.colour"),
+    (BASE + "[inference]\ncolour = 1\n", "inference.colour"),
+    (BASE + "[odometry]\ncolour = 1\n", "odometry.colour"),
+    (BASE + "[appearance]\ncolour = 1\n", "appearance.colour"),
+    (BASE + "[sweep.generator_options]\ncolour = 1\n", "sweep.generator_options.colour"),
+    (BASE + '[[variants]]\nname = "v"\nmodels = ["odometry"]\ncolour = 1\n', "variants['v'].colour"),
+    (BASE + '[[variants]]\nmodels = ["odometry"]\ninference = { colour = 1 }\n', "variants[0].inference.colour"),
+    (BASE.replace('["nested_loops"]', '[{ generator = "corridor_grid", name = "g", rows = 2, cols = 2, loops = 1, '
+                                      'place_density = 0.5, colour = 1 }]'), "sweep.worlds[0].colour"),
+    (BASE.replace('["nested_loops"]', '[{ dataset = "a.npz", name = "a", calibration = ["b.npz"], colour = 1 }]'),
+     "sweep.worlds[0].colour"),
+], ids=["top", "sweep", "inference", "odometry", "appearance", "generator_options", "variant", "variant section",
+        "generated world", "recorded world"])
+def test_an_unknown_key_is_refused_at_every_level_with_its_path(tmp_path, text, path):
+    with pytest.raises(ValueError) as refused:
+        load(tmp_path, text)
+    assert str(refused.value).startswith(f"{tmp_path / 'tiny.toml'}: {path} is an unknown key")
+
+
+def test_defaults_has_the_28_keys_of_the_typed_records_and_the_samplers_defaults():
+    """DEFAULTS is read off the settings records; the sampler settings a config leaves unset are those the library
+    would take itself (``ptm.SamplerOptions``, ``ptm.tempered_mcmc``)."""
+    import dataclasses
+    import inspect
+
+    import ptm
+
+    assert sum(len(keys) for keys in settings.DEFAULTS.values()) == 28
+    assert all(list(settings.DEFAULTS[name]) == [item.name for item in dataclasses.fields(record)]
+               for name, record in settings.SECTIONS.items())
+    assert experiment.DEFAULTS is settings.DEFAULTS
+    library = ptm.SamplerOptions()
+    inference = settings.InferenceSettings()
+    assert (inference.burn_in, inference.chains, inference.max_doublings, inference.moves) == (
+        library.burn_in, library.chains, library.max_doublings, library.moves)
+    temperatures = inspect.signature(ptm.tempered_mcmc).parameters["temperatures"].default
+    assert inference.temperatures == tuple(temperatures)
+
+
+def test_settings_records_are_frozen_picklable_and_json_in_a_cells_definition(tmp_path):
+    import dataclasses
+    import json
+    import pickle
+
+    config = load(tmp_path, BASE + '[[variants]]\nname = "v"\nmodels = ["appearance", "odometry"]\n'
+                                   'odometry = { max_penalty = 50 }\n')
+    (variant,) = config.variants
+    assert variant.models == ("odometry", "appearance") and variant.odometry.max_penalty == 50.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        variant.odometry.max_penalty = 10.0
+    assert pickle.loads(pickle.dumps(variant)) == variant
+    assert json.loads(json.dumps(dataclasses.asdict(variant)))["odometry"]["max_penalty"] == 50.0
+    same = load(tmp_path, BASE + '[[variants]]\nname = "v"\nmodels = ["odometry", "appearance"]\n'
+                                 'odometry = { max_penalty = 50.0 }\n', name="same.toml")
+    assert same.variants == config.variants  # 50 and 50.0 are one setting
 
 
 # -- the sweep engine: tables of other experiments, locks, killed and interrupted runs ---------------------------

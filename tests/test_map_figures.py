@@ -34,7 +34,9 @@ CONFIG = {
 def _loop(*args, **kwargs):
     square = np.tile([2.0, 0.0, np.pi / 2], (4, 1))
     steps = square + np.array([0.1, 0.05, 0.04])  # odometry of a square that does not close
-    return ptm.Dataset(odometry=steps, labels=np.array(TRUTH), true_poses=dead_reckoning(square))
+    # the detector's radius r gives the variant's tie sigma r / sqrt 2 (the builder's rule)
+    return ptm.Dataset(odometry=steps, labels=np.array(TRUTH), true_poses=dead_reckoning(square),
+                       meta={"detection_radius": SIGMA_TOPOLOGY * np.sqrt(2.0)})
 
 
 def _table(experiment, folder):
@@ -73,8 +75,8 @@ def drawn(tmp_path, monkeypatch):
 
 
 def _expected_modes(experiment):
-    settings = next(variant for variant in experiment.variants if variant["name"] == "odometry")["odometry"]
-    term = ptm.OdometryModel(sigma_xy=settings["sigma_xy"], sigma_theta=settings["sigma_theta"],
+    settings = next(variant for variant in experiment.variants if variant.name == "odometry").odometry
+    term = ptm.OdometryModel(sigma_xy=settings.sigma_xy, sigma_theta=settings.sigma_theta,
                              sigma_topology=SIGMA_TOPOLOGY).bind(_loop())
     return [term.mode_poses(labels) for labels, _ in TOP]
 

@@ -1,7 +1,7 @@
 """``ptm-bench online``: a dataset replayed through the online mapper, calibrated on held-out datasets.
 
-The datasets are the hand-made square loops of tests/test_provenance.py (four corner places, noisy
-odometry, a signature per place), so nothing is simulated.
+The datasets are the hand-made square loops of tests/helpers.py (four corner places, noisy odometry, a
+signature per place), so nothing is simulated.
 """
 
 import numpy as np
@@ -10,7 +10,11 @@ import pytest
 import ptm
 from ptm_bench.cli import main
 from ptm_bench.evaluation.online import calibrated_mapper, collapse_warning, replay
-from test_provenance import loop_dataset
+from ptm_bench.evaluation.settings import AppearanceSettings, Variant
+
+from helpers import square_loop_dataset as loop_dataset
+
+APPEARANCE = Variant("appearance", models=("appearance",))
 
 
 @pytest.fixture
@@ -39,28 +43,25 @@ def test_the_replay_finds_the_loop_and_reports_latency_and_the_truths_mass(runs,
 
 def test_the_replay_is_the_mappers_own_result_for_one_seed(runs):
     dataset, held_out = ptm.Dataset.load(runs[0]), [ptm.Dataset.load(runs[10])]
-    first = replay(dataset, calibrated_mapper(dataset, held_out, ["appearance"], particles=32, seed=3)[0])
-    again = replay(dataset, calibrated_mapper(dataset, held_out, ["appearance"], particles=32, seed=3)[0])
+    first = replay(dataset, calibrated_mapper(dataset, held_out, APPEARANCE, particles=32, seed=3)[0])
+    again = replay(dataset, calibrated_mapper(dataset, held_out, APPEARANCE, particles=32, seed=3)[0])
     assert np.array_equal(first.partitions, again.partitions)
     assert np.array_equal(first.probabilities, again.probabilities)
     assert len(first.diagnostics["latency_s"]) == dataset.n
 
 
-def test_the_mapper_uses_the_harness_appearance_default(runs, monkeypatch):
-    from ptm_bench.evaluation import experiment
-
+def test_the_mapper_uses_the_settings_appearance_model(runs):
     dataset, held_out = ptm.Dataset.load(runs[0]), [ptm.Dataset.load(runs[10]), ptm.Dataset.load(runs[11])]
 
-    def fitted(outliers):
-        monkeypatch.setitem(experiment.DEFAULTS["appearance"], "outliers", outliers)
-        mapper, used = calibrated_mapper(dataset, held_out, ["appearance"], particles=8)
+    def fitted(variant):
+        mapper, used = calibrated_mapper(dataset, held_out, variant, particles=8)
         (model,) = mapper.models
         return model, used["source_appearance"]
 
-    model, source = fitted("auto")   # the default: rare outlier visits, the share at most 0.1
+    model, source = fitted(APPEARANCE)   # the default: rare outlier visits, the share at most 0.1
     assert 0.0 < model.outlier_share <= 0.1 and "outlier share" in source
-    model, source = fitted(False)    # the paper's model, when the default says so
-    assert model.outlier_share == 0.0 and "outlier share" not in source
+    model, source = fitted(Variant("paper", models=("appearance",), appearance=AppearanceSettings(outliers=False)))
+    assert model.outlier_share == 0.0 and "outlier share" not in source   # the paper's model, when asked for
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -13,6 +13,7 @@ runs the simulator.
 """
 
 import copy
+import functools
 import math
 import re
 
@@ -24,8 +25,7 @@ from ptm.se2 import relative_pose
 from ptm_bench.evaluation import calibration
 from ptm_bench.evaluation import datacache
 from ptm_bench.evaluation import experiment
-from ptm_bench.simulation import generate
-from ptm_bench.evaluation import cell as cell_module
+from ptm_bench.simulation import code_version
 from ptm_bench.evaluation.cell import build_posterior, run_cell
 from ptm_bench.world.floorplan import WORLDS_DIR
 
@@ -85,19 +85,19 @@ def test_places_per_detection_pools_places_and_detections_over_runs():
 
 def test_the_prior_rate_is_configured_or_expects_places_per_detection_times_n_places():
     runs = [loop_dataset(0, labels=[0, 1, 0, 2]), loop_dataset(1, labels=[0, 1, 1])]
-    rate, source = calibration.prior_rate({"prior_rate": None}, n=14, held_out=runs)
+    rate, source = calibration.prior_rate(None, n=14, held_out=runs)
     assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(10.0, rel=1e-9)
     assert rate > 10.0 + 3.0  # the rate counts unvisited landmarks too
     assert source == "calibrated: rate for E[places] = 0.714 places/detection on 2 held-out runs x N=14 = 10"
     # every held-out detection its own place: the expected places stay half a place below N
     distinct = [loop_dataset(0, labels=[0, 1, 2, 3])]
-    rate, _ = calibration.prior_rate({"prior_rate": None}, n=14, held_out=distinct)
+    rate, _ = calibration.prior_rate(None, n=14, held_out=distinct)
     assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(13.5, rel=1e-9)
 
     def never_called():
         raise AssertionError("a configured parameter must not load the held-out runs")
 
-    assert calibration.prior_rate({"prior_rate": 4}, n=14, held_out=never_called) == (4.0, "config")
+    assert calibration.prior_rate(4, n=14, held_out=never_called) == (4.0, "config")
 
 
 def test_the_place_separation_is_the_closest_pair_of_different_places_over_runs():
@@ -106,23 +106,22 @@ def test_the_place_separation_is_the_closest_pair_of_different_places_over_runs(
                          true_poses=[[0, 0, 0], [0.5, 0, 0], [2.5, 0, 0], [9, 9, 0], [9.1, 9, 0]])
     assert calibration.place_separation([first]) == pytest.approx(2.8)
     assert calibration.place_separation([first, second]) == pytest.approx(2.0)
-    radius, source = calibration.penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75},
-                                                [first, second])
+    radius, source = calibration.penalty_radius(None, 0.75, [first, second])
     assert radius == pytest.approx(1.5)
     assert source == "calibrated: 0.75 x 2 m, the closest detections of different places on 2 held-out runs"
-    assert calibration.penalty_radius({"penalty_radius": 2.5, "penalty_radius_factor": 0.75}, []) == (2.5, "config")
+    assert calibration.penalty_radius(2.5, 0.75, []) == (2.5, "config")
     with pytest.raises(ValueError, match="no held-out run detects two different places"):
         calibration.place_separation([ptm.Dataset(labels=[0, 0], true_poses=np.zeros((2, 3)))])
     with pytest.raises(ValueError, match="at least one held-out run"):
         calibration.place_separation([])
 
 
-def test_the_tie_sigma_is_configured_or_a_multiple_of_the_detector_radius():
-    settings = {"sigma_topology": None, "sigma_topology_factor": 2.0}
-    assert calibration.topology_sigma(settings, {"detection_radius": 1.0}) == (2.0, "sensor spec: 2 x detection radius 1 m")
-    assert calibration.topology_sigma({**settings, "sigma_topology": 0.3}, {}) == (0.3, "config")
+def test_the_tie_sigma_is_configured_or_the_detector_radius_over_root_two():
+    sigma, source = calibration.topology_sigma(None, {"detection_radius": 1.0})
+    assert sigma == pytest.approx(math.sqrt(0.5)) and source == "sensor spec: detection radius 1 m / sqrt 2"
+    assert calibration.topology_sigma(0.3, {}) == (0.3, "config")
     with pytest.raises(ValueError, match="detection_radius"):
-        calibration.topology_sigma(settings, {})
+        calibration.topology_sigma(None, {})
 
 
 # -- no ground truth inside inference -------------------------------------------------------------
@@ -151,15 +150,16 @@ def test_the_posterior_does_not_read_the_scored_runs_ground_truth(tmp_path):
 def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     cells = cells_with_cached_datasets(tmp_path, scored_meta={"aliasing_auc": 0.93})
     inference, baseline = (run_cell(cell) for cell in cells)
-    assert inference["source_prior_rate"] == "calibrated: rate for E[places] = 0.444 places/detection on 2 held-out runs x N=9 = 4"
+    assert inference["source_prior_rate"] == ("calibrated: rate for E[places] = 0.444 places/detection on 2 held-out "
+                                              "runs x N=9 = 4")
     assert ptm.PoissonPrior(inference["prior_rate"]).expected_places(9) == pytest.approx(4.0, rel=1e-9)
     assert inference["source_penalty_radius"].startswith("calibrated: 0.75 x ")
     assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.place_separation(
         calibration.calibration_datasets(cells[0])))
-    assert inference["source_sigma_topology"] == "sensor spec: 0.7071 x detection radius 0.5 m"
-    assert inference["sigma_topology"] == pytest.approx(0.35355)
-    assert inference["source_tie_area"].startswith("this run's dead-reckoned detections: within 0.5 m (the detection "
-                                                   "radius) of their route")
+    assert inference["source_sigma_topology"] == "sensor spec: detection radius 0.5 m / sqrt 2"
+    assert inference["sigma_topology"] == pytest.approx(0.5 / math.sqrt(2.0))
+    assert inference["source_tie_area"] == ("this run's detections: within 0.5 m (the detection radius) of their "
+                                            "dead-reckoned route, no labels")
     assert re.fullmatch(r"empirical Bayes \(independent, outlier share [0-9.e-]+ at [0-9.]+ x the variance\) on 2 "
                         r"held-out runs around each run's mean; prior mean = this run's mean signature",
                         inference["source_appearance"])
@@ -188,7 +188,24 @@ def edited_world(folder, radius="0.5"):
 GRID = {"generator": "corridor_grid", "name": "g", "rows": 2, "cols": 3, "loops": 1, "place_density": 0.8}
 
 
-def test_the_cache_key_follows_the_world_content_and_the_simulator_version(tmp_path, monkeypatch):
+@pytest.fixture
+def edit_code(monkeypatch):
+    """``edit_code(module)``: the module's source reads as edited (a statement added) from now on, as an edit of its
+    file would (tests/test_code_version.py tests the versions themselves); no version of it outlives the test."""
+    def edit(module):
+        read = code_version.module_source
+        monkeypatch.setattr(code_version, "module_source",
+                            lambda name: read(name) + ("\n_EDITED = True\n" if name == module else ""))
+        code_version.code_version.cache_clear()
+
+    # each module read once: the tree as the test found it, whatever is saved meanwhile
+    monkeypatch.setattr(code_version, "module_source", functools.cache(code_version.module_source))
+    code_version.code_version.cache_clear()
+    yield edit
+    code_version.code_version.cache_clear()
+
+
+def test_the_cache_key_follows_the_world_content_and_the_simulator_version(tmp_path, edit_code):
     def key(world):
         return datacache.dataset_path(world, 0.0, 1.0, 3, {}, tmp_path / "cache", None)
 
@@ -198,13 +215,15 @@ def test_the_cache_key_follows_the_world_content_and_the_simulator_version(tmp_p
     assert before["file"].name.startswith("loop_a0_n1_s3_")
     assert key(str(edited_world(tmp_path, radius="0.4"))) != before["file"]
     assert key({**GRID, "loops": 2}) != before["grid"]
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.simulation.generate/test")
+    edit_code("ptm_bench.evaluation.cell")  # the code turning a dataset into a row leaves the datasets fresh
+    assert key("short_loop") == before["preset"]
+    edit_code(code_version.GENERATOR)  # the simulator's code
     assert key("short_loop") != before["preset"]
     assert key(str(edited_world(tmp_path))) != before["file"]
     assert key(GRID) != before["grid"]
 
 
-def test_a_cell_definition_follows_the_world_content_and_the_simulator_version(tmp_path, monkeypatch):
+def test_a_cell_definition_follows_the_world_content_and_the_simulator_version(tmp_path, edit_code):
     world = edited_world(tmp_path)
     config = {**CONFIG, "sweep": {**CONFIG["sweep"], "worlds": [str(world), GRID]}}
 
@@ -216,11 +235,11 @@ def test_a_cell_definition_follows_the_world_content_and_the_simulator_version(t
     edited_world(tmp_path, radius="0.4")
     after_edit = definitions()
     assert after_edit[:2] != before[:2] and after_edit[2:] == before[2:]  # only the cells of the edited world
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", "ptm_bench.simulation.generate/test")
-    after_bump = definitions()
-    assert all(new != old for new, old in zip(after_bump, after_edit))
-    monkeypatch.setattr(cell_module, "CELL_VERSION", "ptm_bench.evaluation.cell/test")  # the rules turning a dataset into a row
-    assert all(new != old for new, old in zip(definitions(), after_bump))
+    edit_code(code_version.GENERATOR)  # the simulator's code
+    after_simulator = definitions()
+    assert all(new != old for new, old in zip(after_simulator, after_edit))
+    edit_code("ptm_bench.evaluation.cell")  # the code turning a dataset into a row
+    assert all(new != old for new, old in zip(definitions(), after_simulator))
 
 
 @pytest.mark.parametrize("exact_max_n, chosen", [(9, "exact"), (8, "tempered")])
@@ -233,104 +252,16 @@ def test_auto_method_is_exact_up_to_its_limit_and_tempered_beyond(tmp_path, exac
     assert (row["n_topologies"] == 21147) == (chosen == "exact")
 
 
-def test_the_tie_normaliser_option_adds_the_per_set_term_with_its_area_from_dead_reckoning(tmp_path):
-    cell = cells_with_cached_datasets(tmp_path)[0]  # the default: normalised ties
-    config = copy.deepcopy(CONFIG)
-    config["odometry"]["tie_normaliser"] = False
-    plain_cell = cells_with_cached_datasets(tmp_path / "plain", config)[0]
+def test_the_tie_normaliser_is_a_term_with_its_area_from_dead_reckoning(tmp_path):
+    cell = cells_with_cached_datasets(tmp_path)[0]
     scored = datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"])
-    normalised, used = build_posterior(cell, scored)
-    plain, plain_used = build_posterior(plain_cell, scored)
-    expected = ptm.TieNormaliser.from_dead_reckoning(scored, 0.35355, 0.5)  # sigma_T = 0.7071 x radius 0.5; margin 0.5
+    posterior, used = build_posterior(cell, scored)
+    expected = ptm.TieNormaliser.from_dead_reckoning(scored, 0.5 / math.sqrt(2.0), 0.5)  # sigma_T = r/sqrt 2, margin r
     assert used["tie_area"] == pytest.approx(expected.area)
-    assert used["source_tie_area"].startswith("this run's dead-reckoned detections: within 0.5 m (the detection "
-                                              "radius) of their route")
-    assert "tie_area" not in plain_used
-    config["odometry"].update(tie_normaliser=True, tie_area="bounding_box")
-    boxed, boxed_used = build_posterior(cells_with_cached_datasets(tmp_path / "box", config)[0], scored)
-    box = ptm.TieNormaliser.from_dead_reckoning(scored, 0.35355, 0.5, "bounding_box")
-    assert boxed_used["tie_area"] == pytest.approx(box.area) and box.area > used["tie_area"]
-    assert "bounding box + 0.5 m" in boxed_used["source_tie_area"]
+    assert used["source_tie_area"] == ("this run's detections: within 0.5 m (the detection radius) of their "
+                                       "dead-reckoned route, no labels")
+    [term] = [term for term in posterior.terms if term.name == "tie_normaliser"]
     for labels in (scored.labels, np.zeros(scored.n, dtype=int), np.arange(scored.n)):
-        gain = expected.log_likelihood(plain.partition(labels))
-        assert normalised.log_prob(labels) - plain.log_prob(labels) == pytest.approx(gain, abs=1e-9)
-    assert expected.log_likelihood(plain.partition(scored.labels)) > 0  # merges gain: the lean to all-distinct is gone
-
-
-@pytest.mark.parametrize("section, key, old_value, other_value, invalid, refusal", [
-    ("odometry", "tie_normaliser", False, True, 1, "tie_normaliser must be true or false"),
-    ("odometry", "sampling_coordinates", "poses", "increments", "world", "sampling_coordinates"),  # a new default
-    ("odometry", "penalty_proposal", "subspace", "mode", "tails", "penalty_proposal"),  # so was this
-    ("inference", "warm_up", "guided", "all", "some", "inference.warm_up"),  # and this
-    ("odometry", "tie_area", "bounding_box", "route", "hull", "tie_area must be"),  # and this
-    ("inference", "unscreened_share", 0.0, 0.05, 1.5, "unscreened_share must be"),  # and this
-    ("inference", "sampler_stream", 0, 1, -1, "sampler_stream must be"),  # the default is the old stream
-    ("inference", "map_window", "none", "default", True, "inference.map_window"),  # a new default
-    ("odometry", "fit_starts", "aligned", "chordal", "warm", "odometry.fit_starts"),  # and this
-])
-def test_an_option_added_at_its_old_behaviour_leaves_the_definitions_unchanged(tmp_path, section, key, old_value,
-                                                                               other_value, invalid, refusal):
-    def cells(overrides):
-        config = {**CONFIG, section: {**CONFIG.get(section, {}), **overrides}}
-        return experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(config)), tmp_path)
-
-    # the rows computed before the key are those of a config pinned to its old value: they stay fresh
-    pinned = cells({key: old_value})[0]
-    before_the_key = {**pinned, "settings": {**pinned["settings"], section: {
-        name: value for name, value in pinned["settings"][section].items() if name != key}}}
-    before_the_key.pop("definition")
-    assert experiment._definition(before_the_key) == pinned["definition"]
-    assert pinned["definition"] != cells({key: other_value})[0]["definition"]   # the inference cell changes
-    default_is_old = experiment.DEFAULTS[section][key] == old_value
-    assert (pinned["definition"] == cells({})[0]["definition"]) == default_is_old
-    with pytest.raises(ValueError, match=refusal):
-        cells({key: invalid})
-
-
-@pytest.mark.parametrize("fit_starts", ["chordal", "aligned"])
-def test_the_configured_fit_starts_reach_the_odometry_term(tmp_path, fit_starts):
-    """odometry.fit_starts decides which minimum is P* (docs/model.md §3.3): the cell's term fits from those starts."""
-    config = copy.deepcopy(CONFIG)
-    config["odometry"] = {**config["odometry"], "fit_starts": fit_starts}
-    cell = cells_with_cached_datasets(tmp_path, config)[0]
-    posterior, _ = build_posterior(cell, datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"]))
-    [term] = [term for term in posterior.terms if term.name == "odometry"]
-    assert term.model.fit_starts == fit_starts
-    chordal = term.graph.chordal_start(term.graph.topology(LOOP_LABELS))
-    assert np.array_equal(term.starts(term.graph.topology(LOOP_LABELS))[0], chordal) == (fit_starts == "chordal")
-
-
-def test_another_sampler_stream_runs_other_chains_on_the_same_posterior(tmp_path, monkeypatch):
-    """inference.sampler_stream branches the sampler's seed alone: the chains get another seed, the posterior (its
-    importance-sampling noise included) and everything calibrated stay, and stream 0 is the committed stream."""
-    sampler_seeds = []
-    mcmc = ptm.mcmc
-    monkeypatch.setattr(ptm, "mcmc", lambda *args, seed, **options: sampler_seeds.append(seed) or mcmc(
-        *args, seed=seed, **options))
-
-    def stream_posterior(stream):
-        config = copy.deepcopy(CONFIG)
-        config["inference"] = {**config["inference"], "sampler_stream": stream, "max_doublings": 0}
-        cell = cells_with_cached_datasets(tmp_path / f"stream{stream}", config)[0]
-        run_cell(cell)
-        return build_posterior(cell, datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cell["inputs"]["cache_dir"]))
-
-    (posterior, used), (other_posterior, other_used) = stream_posterior(0), stream_posterior(1)
-    assert used == other_used
-    for labels in (LOOP_LABELS, np.zeros(len(LOOP_LABELS), dtype=int), np.arange(len(LOOP_LABELS))):
-        assert posterior.log_prob(labels) == other_posterior.log_prob(labels)
-    committed, importance = np.random.SeedSequence(0, spawn_key=(cell_module.INFERENCE_KEY,)).spawn(2)
-    states = [seed.generate_state(4) for seed in sampler_seeds]
-    assert np.array_equal(states[0], committed.generate_state(4))
-    assert not np.array_equal(states[1], states[0])
-    assert np.array_equal(cell_module._inference_seeds(0, 1)[1].generate_state(4), importance.generate_state(4))
-
-
-def test_the_tie_area_does_not_decide_a_cell_without_normalised_ties(tmp_path):
-    """odometry.tie_area acts only with tie_normaliser: configs that switch the normaliser off keep their rows."""
-    def definition(odometry):
-        config = {**CONFIG, "odometry": {**CONFIG["odometry"], **odometry}}
-        return experiment.expand_cells(experiment.parse_experiment(copy.deepcopy(config)), tmp_path)[0]["definition"]
-
-    assert definition({"tie_normaliser": False, "tie_area": "route"}) == definition({"tie_normaliser": False})
-    assert definition({"tie_area": "route"}) != definition({"tie_area": "bounding_box"})
+        partition = posterior.partition(labels)
+        assert term.log_likelihood(partition) == pytest.approx(expected.log_likelihood(partition), abs=1e-9)
+    assert expected.log_likelihood(posterior.partition(scored.labels)) > 0  # merges gain: no lean to all-distinct

@@ -24,7 +24,7 @@ def _config(worlds, **extra):
 def test_calibration_defaults_to_the_other_recorded_worlds(tmp_path):
     worlds = [{"dataset": LOGS[name], "name": name} for name in ("aces", "fhw", "intel")]
     experiment = parse_experiment(_config(worlds))
-    aces = experiment.sweep["worlds"][0]
+    aces = experiment.sweep.worlds[0]
     assert aces["calibration"] == [LOGS["fhw"], LOGS["intel"]]
     cells = expand_cells(experiment, tmp_path)
     cell = next(cell for cell in cells if cell["world"] == "aces" and cell["variant"] == "greedy_odometry")
@@ -42,7 +42,7 @@ def test_calibration_defaults_to_the_other_recorded_worlds(tmp_path):
 @pytest.mark.parametrize("worlds, message", [
     ([{"dataset": LOGS["aces"], "name": "aces"}], "has no calibration runs"),
     ([{"dataset": LOGS["aces"], "name": "aces", "calibration": [LOGS["fhw"], LOGS["aces"]]}], "lists itself"),
-    ([{"dataset": LOGS["aces"], "name": "aces", "seed": 3}], "unknown key 'seed'"),
+    ([{"dataset": LOGS["aces"], "name": "aces", "seed": 3}], r"sweep.worlds\[0\].seed is an unknown key"),
     ([{"dataset": LOGS["aces"]}, {"dataset": LOGS["fhw"], "name": "fhw"}], "needs a 'name'"),
 ])
 def test_bad_recorded_worlds_are_refused(worlds, message):
@@ -54,6 +54,6 @@ def test_the_shipped_config_parses():
     from ptm_bench.evaluation.experiment import load_experiment
 
     experiment = load_experiment(ROOT / "experiments" / "real_logs.toml")
-    assert [world["name"] for world in experiment.sweep["worlds"]] == ["intel", "aces", "fhw", "acapulco"]
+    assert [world["name"] for world in experiment.sweep.worlds] == ["intel", "aces", "fhw", "acapulco"]
     assert all(world["dataset"] not in world["calibration"] and len(world["calibration"]) == 3
-               for world in experiment.sweep["worlds"])
+               for world in experiment.sweep.worlds)

@@ -192,9 +192,9 @@ def test_a_config_expands_into_named_cells_with_variant_overrides(tmp_path):
     assert cells[0]["cell_id"] == "nested_loops|a=0|noise=1|seed=0|odometry"
     both = next(cell for cell in cells if cell["variant"] == "both")
     assert both["models"] == "odometry+appearance"
-    assert both["settings"]["odometry"]["max_penalty"] == 150
+    assert both["settings"].odometry.max_penalty == 150.0 and both["settings"].models == ("odometry", "appearance")
     odometry_only = next(cell for cell in cells if cell["variant"] == "odometry")
-    assert odometry_only["settings"]["odometry"]["max_penalty"] == 50
+    assert odometry_only["settings"].odometry.max_penalty == 50.0
     assert {cell["method"] for cell in cells if cell["variant"] == "greedy_odometry"} == {"baseline"}
     # the definition digest follows the config, not where the results go
     assert len({cell["definition"] for cell in cells}) == len(cells)
@@ -208,16 +208,17 @@ def test_a_config_expands_into_named_cells_with_variant_overrides(tmp_path):
 
 
 @pytest.mark.parametrize("bad, message", [
-    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\ncolour = 1\n', "unknown key 'colour' in \\[sweep\\]"),
-    ('[sweep]\nworlds = ["atlantis"]\nseeds = [0]\n', "unknown world 'atlantis'"),
-    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\nspeling = 1\n', "unknown key 'speling'"),
-    ('flavour = "x"\n[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n', "unknown key 'flavour' in the top level"),
-    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0, 1]\ncalibration_seeds = [1]\n', "held out from sweep.seeds"),
-    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n[[variants]]\nname = "v"\nmodels = ["lidar"]\n', "unknown model 'lidar'"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\ncolour = 1\n', r"sweep\.colour is an unknown key"),
+    ('[sweep]\nworlds = ["atlantis"]\nseeds = [0]\n', r"sweep\.worlds\[0\]: unknown world 'atlantis'"),
+    ('flavour = "x"\n[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n', "flavour is an unknown key at the top level"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0, 1]\ncalibration_seeds = [1]\n',
+     r"sweep\.calibration_seeds must be held out from seeds"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n[[variants]]\nname = "v"\nmodels = ["lidar"]\n',
+     r"variants\['v'\]\.models: unknown model 'lidar'"),
     ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n[[variants]]\nname = "v"\nmodels = ["odometry"]\n'
-     'odometry = { penalty = 3 }\n', "unknown key 'penalty' in variant 'v' odometry"),
+     'odometry = { penalty = 3 }\n', r"variants\['v'\]\.odometry\.penalty is an unknown key"),
     ('baselines = ["oracle"]\n[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\n', "unknown baseline 'oracle'"),
-    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\naliasing = [1.5]\n', "aliasing values must lie in"),
+    ('[sweep]\nworlds = ["nested_loops"]\nseeds = [0]\naliasing = [1.5]\n', r"sweep\.aliasing values must lie in"),
 ])
 def test_bad_configs_are_refused_with_the_offending_name(tmp_path, bad, message):
     with pytest.raises(ValueError, match=message):

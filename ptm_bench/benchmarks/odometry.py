@@ -4,15 +4,13 @@ Measures, on synthetic routes (a robot visiting about N/3 places on a 5 m
 grid in random order, odometry composed on SE(2) with noise):
 
 * the median wall (and process CPU) time of one log P(O | T) evaluation on a cache miss
-  (Laplace fit from the two history-free starts of docs/model.md §3.3, plus importance
+  (Laplace fit from the history-free starts of docs/model.md §3.3, plus importance
   sampling with ``n_importance = 100``) at N = 10, 50, 100, 200, for
   partitions one Gibbs move away from the truth, as a sampler proposes them, with the
-  weights' mean ESS and Monte-Carlo standard error, for samples drawn in the increments
-  (the default) and in the poses (metrics ending ``_poses``, erratum E12);
-* the odometry cache hit rate, the mean effective sample size of the weights
-  and the MH steps per second of a chain with odometry + appearance at N = 50,
-  with plain and with delayed acceptance, and with delayed acceptance and the map-steered window in the
-  default moves (metrics ending ``_map_window``).
+  weights' mean ESS and Monte-Carlo standard error;
+* the odometry cache hit rate, the number of evaluations and the MH steps per second of one
+  chain of the default moves with odometry + appearance at N = 50, from the truth, with plain
+  and with delayed acceptance (docs/model.md §3.4).
 
     $ ptm-bench speed --section odometry
     $ ptm-bench speed --section odometry --scale 0.2   # quicker, noisier
@@ -52,10 +50,10 @@ def synthetic_route_dataset(n: int, seed: int = 0, spacing: float = 5.0) -> ptm.
     return ptm.Dataset(odometry=odometry, signatures=signatures, labels=labels, true_poses=poses)
 
 
-def odometry_model(seed: int = 0, **estimator) -> ptm.OdometryModel:
-    """The benchmark's model; ``estimator``: ``sampling_coordinates``, ``penalty_proposal`` (else the defaults)."""
+def odometry_model(seed: int = 0) -> ptm.OdometryModel:
+    """The benchmark's model."""
     return ptm.OdometryModel(sigma_xy=0.1, sigma_theta=0.02, sigma_topology=0.3, penalty_radius=2.5,
-                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed, **estimator)
+                             max_penalty=100.0, n_importance=N_IMPORTANCE, seed=seed)
 
 
 def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
@@ -68,44 +66,29 @@ def neighbouring_partitions(labels, count: int, rng) -> list[np.ndarray]:
     return out
 
 
-#: The estimators compared, by metric-name suffix (the default's metrics keep their names): the paper's
-#: draws in the poses, and the penalty component fitted over the penalised positions only.
-ESTIMATOR_VARIANTS = {"": {}, "_poses": {"sampling_coordinates": "poses"},
-                      "_subspace": {"penalty_proposal": "subspace"}}
-
-
 def odometry_rows(args) -> list[dict]:
     rows = []
     evaluations = max(10, int(60 * args.scale))
     for n in EVALUATION_SIZES:
         dataset = synthetic_route_dataset(n)
-        # one term per estimator (no shared fits), the partitions evaluated alternately so that all
-        # see the same load
-        terms = {suffix: odometry_model(**estimator).bind(dataset) for suffix, estimator in ESTIMATOR_VARIANTS.items()}
-        wall = {suffix: [] for suffix in terms}
-        cpu = {suffix: [] for suffix in terms}
-        for term in terms.values():
-            term.evaluate(dataset.labels)  # the chain's current state (no longer a warm start: kept for comparability)
+        term = odometry_model().bind(dataset)
+        wall, cpu = [], []
+        term.evaluate(dataset.labels)  # the chain's current state
         for labels in neighbouring_partitions(dataset.labels, evaluations, np.random.default_rng(n)):
-            for suffix, term in terms.items():
-                started_wall, started_cpu = time.perf_counter(), time.process_time()
-                term.evaluate(labels)
-                wall[suffix].append(time.perf_counter() - started_wall)
-                cpu[suffix].append(time.process_time() - started_cpu)
-        for suffix, term in terms.items():
-            diagnostics = term.diagnostics()
-            rows += [
-                {"section": "odometry", "metric": f"evaluation_median_ms_cache_miss{suffix}", "n": n,
-                 "value": 1e3 * float(np.median(wall[suffix])), "unit": "ms"},
-                {"section": "odometry", "metric": f"evaluation_median_cpu_ms_cache_miss{suffix}", "n": n,
-                 "value": 1e3 * float(np.median(cpu[suffix])), "unit": "ms (process CPU)"},
-                {"section": "odometry", "metric": f"importance_ess_mean{suffix}", "n": n,
-                 "value": diagnostics["ess_mean"], "unit": f"of {N_IMPORTANCE}"},
-                {"section": "odometry", "metric": f"mc_standard_error_mean{suffix}", "n": n,
-                 "value": diagnostics["mc_standard_error_mean"], "unit": "nats"},
-            ]
-        diagnostics = terms[""].diagnostics()  # the fits are the same in all
+            started_wall, started_cpu = time.perf_counter(), time.process_time()
+            term.evaluate(labels)
+            wall.append(time.perf_counter() - started_wall)
+            cpu.append(time.process_time() - started_cpu)
+        diagnostics = term.diagnostics()
         rows += [
+            {"section": "odometry", "metric": "evaluation_median_ms_cache_miss", "n": n,
+             "value": 1e3 * float(np.median(wall)), "unit": "ms"},
+            {"section": "odometry", "metric": "evaluation_median_cpu_ms_cache_miss", "n": n,
+             "value": 1e3 * float(np.median(cpu)), "unit": "ms (process CPU)"},
+            {"section": "odometry", "metric": "importance_ess_mean", "n": n,
+             "value": diagnostics["ess_mean"], "unit": f"of {N_IMPORTANCE}"},
+            {"section": "odometry", "metric": "mc_standard_error_mean", "n": n,
+             "value": diagnostics["mc_standard_error_mean"], "unit": "nats"},
             {"section": "odometry", "metric": "newton_iterations_mean", "n": n,
              "value": diagnostics["lm_iterations_mean"], "unit": "iterations"},
             {"section": "odometry", "metric": "factorisations_mean", "n": n,
@@ -114,13 +97,11 @@ def odometry_rows(args) -> list[dict]:
     steps = max(500, int(5_000 * args.scale))
     dataset = synthetic_route_dataset(CHAIN_SIZE)
     appearance = ptm.AppearanceModel(mu=0.25, kappa=0.1, alpha=3.0, beta=2.0 * 0.01**2)
-    for name in ("plain", "delayed_acceptance", "map_window"):
+    for name in ("plain", "delayed_acceptance"):
         posterior = ptm.Posterior(dataset, ptm.PoissonPrior(rate=CHAIN_SIZE / 3), [appearance, odometry_model()])
-        # map_window: the default moves with the map-steered window (the harness's default below 20 detections)
-        moves = ptm.sampler.default_moves(ptm.surrogate.OdometrySurrogate(posterior)) if name == "map_window" else None
         started = time.perf_counter()
-        result = ptm.mcmc(posterior, steps, seed=1, init=dataset.labels, delayed_acceptance=name != "plain",
-                          moves=moves)
+        result = ptm.mcmc(posterior, steps, seed=1, chains=1, start=dataset.labels, burn_in=0, max_doublings=0,
+                          moves="default", delayed_acceptance=name != "plain")
         rate = steps / (time.perf_counter() - started)
         odometry = result.diagnostics["odometry"]
         rows += [

@@ -17,11 +17,9 @@ in that run).
 run seed 0: 116 detections), one of a 14 x 14 grid (208 detections of 113 places) and one of a 16 x 16 grid (301
 detections of 154 places: how far past 200 the latency holds), at aliasing 0 and odometry noise 1, each replayed
 detection by detection through :class:`ptm.OnlineMapper` with its default settings, odometry + appearance. The
-parameters are calibrated as a sweep calibrates them (:mod:`ptm_bench.evaluation.calibration`), on one held-out
-run of a 5 x 5 grid (seed 1000): the appearance model by empirical Bayes with one prior mean for every run (an
-online run does not know its own mean signature before it ends), the penalty radius from the held-out places, the
-tie from the detector's radius, and the prior rate, given to the mapper as a function of n, from the held-out
-places per detection. ``--scale`` scales every grid's side by sqrt(scale) (n is in the rows).
+models are the harness's defaults, built as a sweep's (:func:`ptm_bench.evaluation.online.calibrated_mapper`,
+the online differences named there) and calibrated on one held-out run of a 5 x 5 grid (seed 1000). ``--scale``
+scales every grid's side by sqrt(scale) (n is in the rows).
 
 Its rows (``section, metric, n, value, unit``), for each run, n = the run's detections:
 

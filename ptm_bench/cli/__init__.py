@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "ptm_bench.cli.import_carmen",
     "ptm_bench.cli.export",
     "ptm_bench.cli.online",
+    "ptm_bench.cli.index",
 )
 
 

@@ -75,7 +75,7 @@ def run(args) -> int:
                          "refusing to replace it: choose another folder")
     cells = expand_cells(experiment, args.out)
     print(f"Simulating {args.world} (aliasing {args.aliasing:g}, noise {args.noise:g}, seed {args.seed}), "
-          f"calibrating on held-out seeds {experiment.sweep['calibration_seeds']}, "
+          f"calibrating on held-out seeds {list(experiment.sweep.calibration_seeds)}, "
           f"and running {len(cells)} inferences on {args.workers} processes...")
     started = time.perf_counter()
     # A fresh table each time: the demo always recomputes (a sweep would resume instead). The sweep refuses
@@ -92,7 +92,8 @@ def run(args) -> int:
     truth = tuple(json.loads(finished.iloc[0]["true_labels"]))
     print(f"\n{len(truth)} detections of {max(truth) + 1} places; true topology {topology_string(truth)} "
           "(character i is the place of detection i)\n")
-    print(f"{'method':<22}{'P(truth)':>9}{'rank':>6}{'MAP=truth':>10}{'ARI':>6}{'loop F1':>8}{'E[places]':>10}{'time':>8}")
+    print(f"{'method':<22}{'P(truth)':>9}{'rank':>6}{'MAP=truth':>10}{'ARI':>6}{'loop F1':>8}{'E[places]':>10}"
+          f"{'time':>8}")
     for _, row in finished.iterrows():
         rank = "-" if row["gt_rank"] != row["gt_rank"] else f"{int(row['gt_rank'])}"
         f1 = "-" if row["lc_f1"] != row["lc_f1"] else f"{row['lc_f1']:.2f}"

@@ -1,6 +1,7 @@
 """``ptm-bench online``: replay a dataset through the online mapper, one detection at a time.
 
-The mapper's parameters are calibrated on labelled held-out datasets (``--calibration``, never the replayed
+The mapper's models are the harness's defaults (:data:`ptm_bench.evaluation.settings.DEFAULTS`), built by the
+builder a sweep's cells use and calibrated on labelled held-out datasets (``--calibration``, never the replayed
 one), as a sweep calibrates them (:mod:`ptm_bench.evaluation.online`). It prints the latency of each update
 every ``--every`` detections, then the latency summary, the most probable topologies and, where the
 dataset has labels, the final MAP's adjusted Rand index and the ground truth's mass; ``--ptm-out`` keeps
@@ -17,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 import ptm
-from ptm_bench.cli.options import positive_int
-from ptm_bench.evaluation.experiment import MODEL_NAMES
+from ptm_bench.cli.options import positive_int, print_parameters
 from ptm_bench.evaluation.online import calibrated_mapper, collapse_warning, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
+from ptm_bench.evaluation.settings import MODEL_NAMES, Variant
 
 
 def register(subparsers) -> None:
@@ -51,13 +52,11 @@ def _run_online(args) -> int:
         held_out.append(ptm.Dataset.load(path))
     if args.ptm_out is not None and args.ptm_out.suffix != ".npz":
         raise ValueError(f"--ptm-out: PTM files end in .npz, got {args.ptm_out.name!r}")
-    mapper, used = calibrated_mapper(dataset, held_out, args.models, args.particles, args.seed)
+    mapper, used = calibrated_mapper(dataset, held_out, Variant("online", models=tuple(args.models)),
+                                     particles=args.particles, seed=args.seed)
     print(f"{args.dataset.name}: N = {dataset.n} detections, models {' + '.join(args.models)}, "
           f"{args.particles} particles, calibrated on {len(held_out)} held-out run(s)")
-    for name, source in used.items():
-        if name.startswith("source_"):
-            value = used.get(name[len("source_"):])
-            print(f"  {name[len('source_'):]}: {'' if value is None else f'{value:.3g} '}({source})")
+    print_parameters(used)
 
     def report(n: int, result: ptm.PTM) -> None:
         if n % args.every == 0 or n == dataset.n:

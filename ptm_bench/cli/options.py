@@ -1,4 +1,4 @@
-"""Argument types and output checks shared by the ``ptm-bench`` sub-commands.
+"""Argument types, output checks and the report of the parameters used, shared by the ``ptm-bench`` sub-commands.
 
 They fail at the command line, before any simulation, with a message naming the option:
 
@@ -20,7 +20,7 @@ import argparse
 import os
 from pathlib import Path
 
-__all__ = ["RESUME_HINT", "dataset_output", "output_folder", "positive_int"]
+__all__ = ["RESUME_HINT", "dataset_output", "output_folder", "positive_int", "print_parameters"]
 
 #: Attribute of the parsed arguments that a command sets to say how to resume it; printed on Ctrl-C.
 RESUME_HINT = "resume_hint"
@@ -65,3 +65,13 @@ def dataset_output(path) -> Path:
     if not os.access(folder, os.W_OK):
         raise ValueError(f"out: folder {folder} is not writable")
     return out
+
+
+def print_parameters(used: dict) -> None:
+    """One line per parameter in ``used`` (of :func:`ptm_bench.evaluation.models.build_models`): its value, where
+    it is a number, and its source."""
+    for name, source in used.items():
+        if name.startswith("source_"):
+            value = used.get(name[len("source_"):])
+            shown = f"{value:.3g} " if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
+            print(f"  {name[len('source_'):]}: {shown}({source})")

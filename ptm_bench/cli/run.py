@@ -1,7 +1,9 @@
-"""``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures (docs/model.md §6).
+"""``ptm-bench run``: run an experiment config as a resumable sweep, then write its summary and figures
+(docs/model.md §6).
 
 Cells already in ``results/NAME/cells.csv`` are skipped, so an interrupted run
-resumes where it stopped; cells whose config was edited since are recomputed. Cells run in local processes by default, or on a
+resumes where it stopped; cells whose definition changed since (an edited config,
+world or code) are recomputed. Cells run in local processes by default, or on a
 Dask distributed cluster with ``--scheduler ADDRESS`` (``pip install 'ptm[dask]'``).
 
     $ ptm-bench run experiments/exp3_nested.toml
@@ -22,7 +24,8 @@ from ptm.dataset import atomic_write
 from ptm_bench.reporting.checks import check_table, evaluate_checks, junit_xml
 from ptm_bench.reporting.summary import aggregate, current_rows, markdown_table, write_summary
 
-SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari", "wall_s"]
+SHOWN_COLUMNS = ["world", "aliasing", "noise", "variant", "seeds", "gt_mass", "gt_rank_median", "map_correct", "ari",
+                 "wall_s"]
 
 
 DESCRIPTION = """\
@@ -36,15 +39,17 @@ Output goes to OUT/NAME/ (NAME: the config's 'name', default its file name):
   *.png            figures; datasets/ caches the simulated runs
 
 Cells already in cells.csv are skipped, so an interrupted run (Ctrl-C, a kill)
-resumes where it stopped; cells whose config changed are recomputed.
+resumes where it stopped; cells whose definition changed (config, world or code)
+are recomputed.
 
 With --check, the config's [checks] thresholds (e.g. "odometry+appearance".gt_mass
 = ">= 0.9") are checked against the summary: a table of what held, a JUnit XML
 report (OUT/NAME/checks.xml, or --junit PATH) and exit status 1 if one fell short.
 
 Config sections ([sweep], [inference], [odometry], [appearance], [[variants]],
-baselines, [paper], [checks]) and every key with its default: docs/model.md section 6 and
-ptm_bench.evaluation.experiment.DEFAULTS
+baselines, [paper], [checks]) and every key with its default: docs/model.md section 6,
+the typed records of ptm_bench.evaluation.settings (an unknown or removed key is
+refused, naming its path) and ptm_bench.evaluation.experiment.DEFAULTS
 (python3 -c "import ptm_bench.evaluation.experiment as e; print(e.DEFAULTS)")."""
 
 
@@ -61,7 +66,8 @@ def register(subparsers) -> None:
     parser.add_argument("--retry-failed", action="store_true", help="rerun cells that ended in an error")
     parser.add_argument("--check", action="store_true",
                         help="check the config's [checks] thresholds; exit 1 if one fails; write a JUnit XML report")
-    parser.add_argument("--junit", type=Path, default=None, help="where --check writes its report (default: OUT/NAME/checks.xml)")
+    parser.add_argument("--junit", type=Path, default=None,
+                        help="where --check writes its report (default: OUT/NAME/checks.xml)")
     parser.add_argument("--no-figures", action="store_true", help="write summary.md without drawing figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
@@ -78,10 +84,11 @@ def run(args) -> int:
     table = run_sweep(cells, run_cell, results_dir / "cells.csv", workers=args.workers, scheduler=args.scheduler,
                       retry_failed=args.retry_failed, progress=not args.no_progress)
     if table.attrs.get("recomputed_changed"):
-        print(f"{table.attrs['recomputed_changed']} cells were recomputed: the config changed them since the table was written")
+        print(f"{table.attrs['recomputed_changed']} cells were recomputed: their definition changed since the table "
+              "was written")
     if table.attrs.get("reused_unverified"):
-        print(f"{table.attrs['reused_unverified']} cells were reused from a table written before configs were recorded; "
-              f"delete {results_dir / 'cells.csv'} to recompute them")
+        print(f"{table.attrs['reused_unverified']} cells were reused from a table written before configs were "
+              f"recorded; delete {results_dir / 'cells.csv'} to recompute them")
     summary_path = write_summary(experiment, table, results_dir, figures=not args.no_figures)
     current, left_out = current_rows(experiment, table, results_dir)
     summary = aggregate(current)
@@ -90,7 +97,8 @@ def run(args) -> int:
     if len(summary):
         print(markdown_table(summary[SHOWN_COLUMNS]))
     failed = int((table["status"] != "ok").sum())
-    print(f"\n{len(table) - failed} cells finished, {failed} failed; table {results_dir / 'cells.csv'}, summary {summary_path}")
+    print(f"\n{len(table) - failed} cells finished, {failed} failed; table {results_dir / 'cells.csv'}, "
+          f"summary {summary_path}")
     if failed:
         print(failure_report(table, f"ptm-bench run {args.config} --out {args.out} --retry-failed"))
     checks_failed = 0

@@ -79,7 +79,8 @@ def _previous_rows(path: Path):
         raise ValueError(f"{path} is not a speed table ({type(error).__name__}); refusing to overwrite it") from None
     missing = {"section", "metric", "n", "value", "unit"} - set(previous.columns)
     if missing:
-        raise ValueError(f"{path} is not a speed table (no column {', '.join(sorted(missing))}); refusing to overwrite it")
+        raise ValueError(f"{path} is not a speed table (no column {', '.join(sorted(missing))}); refusing to "
+                         "overwrite it")
     return previous
 
 

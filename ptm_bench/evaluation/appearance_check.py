@@ -108,12 +108,12 @@ def _check(fitted, datasets) -> tuple[dict, np.ndarray]:
         real = dataset.labels >= 0
         signatures, labels = dataset.signatures[real], dataset.labels[real]
         term = fitted(dataset).bind(ptm.Dataset(signatures=signatures))
-        factors = ptm.pairwise_log_bayes_factors(term)
+        factors = ptm.appearance.pairwise_log_bayes_factors(term)
         upper = np.triu_indices(len(labels), 1)
         same = labels[upper[0]] == labels[upper[1]]
         same_factors.append(factors[upper][same])
         different_factors.append(factors[upper][~same])
-        loo = ptm.leave_one_out_pit(term, labels)
+        loo = ptm.appearance.leave_one_out_pit(term, labels)
         pits.append(loo[~np.isnan(loo).any(axis=1)])
     same_factors = np.concatenate(same_factors)
     different_factors = np.concatenate(different_factors)

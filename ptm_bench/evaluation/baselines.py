@@ -99,7 +99,8 @@ def fit_threshold(datasets: Sequence, features: Callable) -> float:
         for block in points
     ])
     # A threshold just above a distance admits that pair; nudging by a relative 1e-9 keeps the candidates distinct.
-    candidates = np.unique(np.concatenate([[0.0], np.quantile(distances, np.linspace(0, 1, _MAX_CANDIDATES)) * (1 + 1e-9)]))
+    quantiles = np.quantile(distances, np.linspace(0, 1, _MAX_CANDIDATES)) * (1 + 1e-9)
+    candidates = np.unique(np.concatenate([[0.0], quantiles]))
     mean_ari = [
         np.mean([adjusted_rand_index(greedy_threshold_labels(block, threshold), dataset.labels)
                  for block, dataset in zip(points, datasets)])

@@ -6,7 +6,9 @@ parameter is therefore one of
 
 * **configured** (the experiment's TOML sets it);
 * a **sensor specification** a user knows: the detector's radius r (dataset
-  meta ``detection_radius``) gives the tie sigma_T = ``sigma_topology_factor`` x r;
+  meta ``detection_radius``) gives the tie sigma_T = r / sqrt 2 (two positions
+  each uniform within r of their place differ by r / sqrt 2 per axis) and the
+  margin of the landmarks' area of the normalised ties (docs/model.md §3.3);
 * **calibrated** on the *held-out* runs (:func:`calibration_datasets`):
   labelled runs of the cell's world, aliasing and noise at seeds the
   experiment never scores (the config loader refuses overlapping seed lists).
@@ -42,20 +44,21 @@ The calibrated ones:
   component, paper eq. 15-19) by empirical Bayes — maximising the evidence of
   the held-out runs' true partitions (``ptm.AppearanceModel.fit``).
 
-Each function returns ``(value, source)``: the number and a one-line
-provenance that :mod:`ptm_bench.evaluation.cell` records as the ``source_<parameter>``
-column.
+Each function takes the configured value (None: not configured) and returns
+``(value, source)``: the number and a one-line provenance that the builder of
+the models (:func:`ptm_bench.evaluation.models.build_models`) records as the
+``source_<parameter>`` column.
 
     >>> import numpy as np, ptm
     >>> square = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
     >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square)]   # one labelled run
-    >>> rate, source = prior_rate({"prior_rate": None}, n=12, held_out=held_out)
+    >>> rate, source = prior_rate(None, n=12, held_out=held_out)
     >>> round(rate, 2), source
     (19.32, 'calibrated: rate for E[places] = 0.75 places/detection on 1 held-out run x N=12 = 9')
-    >>> penalty_radius({"penalty_radius": None, "penalty_radius_factor": 0.75}, held_out)
+    >>> penalty_radius(None, 0.75, held_out)
     (3.0, 'calibrated: 0.75 x 4 m, the closest detections of different places on 1 held-out run')
-    >>> topology_sigma({"sigma_topology": None, "sigma_topology_factor": 2.0}, {"detection_radius": 1.0})
-    (2.0, 'sensor spec: 2 x detection radius 1 m')
+    >>> topology_sigma(None, {"detection_radius": 1.5})
+    (1.0606601717798212, 'sensor spec: detection radius 1.5 m / sqrt 2')
 """
 
 from __future__ import annotations
@@ -70,8 +73,9 @@ import ptm
 
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
-__all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance", "penalty_radius", "place_separation", "places_per_detection",
-           "prior_rate", "tie_area_margin", "tie_area_source", "topology_sigma"]
+__all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance",
+           "penalty_radius", "place_separation", "places_per_detection", "prior_rate", "tie_area_margin",
+           "topology_sigma"]
 
 CONFIG = "config"
 
@@ -82,13 +86,12 @@ def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
     For a recorded world, the recorded runs in its ``calibration`` list (never the scored run itself).
     """
     inputs = cell["inputs"]
+    components = cell["settings"].appearance.components
     if is_recorded(inputs["world_spec"]):  # a recorded run is calibrated on the other recorded runs it names
-        return [load_recorded(path, cell["settings"]["appearance"]["components"])
-                for path in inputs["world_spec"]["calibration"]]
+        return [load_recorded(path, components) for path in inputs["world_spec"]["calibration"]]
     seeds = inputs["calibration_seeds"]
     if cell["seed"] in seeds:
         raise ValueError(f"seed {cell['seed']} is both scored and a calibration seed")
-    components = cell["settings"]["appearance"]["components"]
     return [
         dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], seed, inputs["generator_options"],
                     inputs["cache_dir"], components)
@@ -194,15 +197,16 @@ def place_separation(held_out: Sequence[ptm.Dataset]) -> float:
     return closest
 
 
-def prior_rate(inference_settings: dict, n: int, held_out) -> tuple[float, str]:
-    """The configured ``inference.prior_rate``, or the rate that expects places per detection (held-out) x ``n`` places.
+def prior_rate(configured: float | None, n: int, held_out) -> tuple[float, str]:
+    """The ``configured`` ``inference.prior_rate``, or the rate that expects places per detection (held-out) x ``n``
+    places.
 
     The expected places are kept below ``n - 0.5`` (a held-out share of 1, every detection its own place, would
     need an infinite rate) and ``n = 1`` needs no prior (any rate gives the one partition).
     ``held_out`` is the list of held-out runs, or a function returning it (called only when needed).
     """
-    if inference_settings["prior_rate"] is not None:
-        return float(inference_settings["prior_rate"]), CONFIG
+    if configured is not None:
+        return float(configured), CONFIG
     held_out = _materialised(held_out)
     share = places_per_detection(held_out)
     places = min(share * n, n - 0.5)
@@ -213,49 +217,43 @@ def prior_rate(inference_settings: dict, n: int, held_out) -> tuple[float, str]:
                   f"= {places:.3g}")
 
 
-def penalty_radius(odometry_settings: dict, held_out) -> tuple[float, str]:
-    """The configured penalty radius D, or ``penalty_radius_factor`` x :func:`place_separation` of the held-out runs.
+def penalty_radius(configured: float | None, factor: float, held_out) -> tuple[float, str]:
+    """The ``configured`` penalty radius D, or ``factor`` (``odometry.penalty_radius_factor``) x
+    :func:`place_separation` of the held-out runs.
 
     ``held_out`` is the list of held-out runs, or a function returning it (called only when needed).
     """
-    if odometry_settings["penalty_radius"] is not None:
-        return float(odometry_settings["penalty_radius"]), CONFIG
-    factor = float(odometry_settings["penalty_radius_factor"])
+    if configured is not None:
+        return float(configured), CONFIG
+    factor = float(factor)
     held_out = _materialised(held_out)
     separation = place_separation(held_out)
     return factor * separation, (f"calibrated: {factor:g} x {separation:.3g} m, the closest detections of "
                                  f"different places on {_runs(held_out)}")
 
 
-def topology_sigma(odometry_settings: dict, meta: dict) -> tuple[float, str]:
-    """The configured tie sigma_T, or ``sigma_topology_factor`` x the detector's radius (a sensor specification).
+def topology_sigma(configured: float | None, meta: dict) -> tuple[float, str]:
+    """The ``configured`` tie sigma_T, or the detector's radius r / sqrt 2 (a sensor specification).
 
-    Two detections of one place lie anywhere within the detection radius r of
-    it, so up to 2r apart: sigma_T of the order of r keeps such pairs plausible.
+    Two detections of one place lie anywhere within r of it; two positions each uniform on that disc differ
+    by r / sqrt 2 per axis (their spread), which is the tie's standard deviation (docs/model.md §3.3, §6).
     """
-    if odometry_settings["sigma_topology"] is not None:
-        return float(odometry_settings["sigma_topology"]), CONFIG
+    if configured is not None:
+        return float(configured), CONFIG
     if "detection_radius" not in meta:
         raise ValueError("odometry.sigma_topology is not set and the dataset meta has no 'detection_radius' "
                          "(the detector's specification) to derive it from")
-    factor, radius = float(odometry_settings["sigma_topology_factor"]), float(meta["detection_radius"])
-    return factor * radius, f"sensor spec: {factor:g} x detection radius {radius:g} m"
+    radius = float(meta["detection_radius"])
+    return radius / math.sqrt(2.0), f"sensor spec: detection radius {radius:g} m / sqrt 2"
 
 
 def tie_area_margin(meta: dict) -> float:
-    """The margin [m] added on every side of the dead-reckoned detections for the area of the normalised ties
-    (``odometry.tie_normaliser``): the detector's radius, a sensor specification."""
+    """The margin [m] of the landmarks' area of the normalised ties (``ptm.TieNormaliser``: within the margin of
+    the dead-reckoned route): the detector's radius, a sensor specification."""
     if "detection_radius" not in meta:
-        raise ValueError("odometry.tie_normaliser needs the detector's radius (dataset meta 'detection_radius') "
-                         "for the margin of the landmarks' area")
+        raise ValueError("the normalised ties need the detector's radius (dataset meta 'detection_radius') for "
+                         "the margin of the landmarks' area")
     return float(meta["detection_radius"])
-
-
-def tie_area_source(area_rule: str, margin: float, detections: str) -> str:
-    """Where the area of the normalised ties came from (``odometry.tie_area``), for a row's provenance."""
-    shape = (f"within {margin:g} m (the detection radius) of their route" if area_rule == "route"
-             else f"bounding box + {margin:g} m (the detection radius) on every side")
-    return f"{detections}: {shape}, no labels"
 
 
 def _materialised(held_out) -> list[ptm.Dataset]:

@@ -11,11 +11,25 @@ time. Everything random is seeded from the cell's seed: the dataset by the
 simulator, and the inference streams (sampler, importance-sampling noise)
 from ``SeedSequence(seed, spawn_key=(INFERENCE_KEY,))``, a branch the
 simulator's own spawned streams never use. The same streams
-serve every variant of a seed (common random numbers across variants);
-``inference.sampler_stream`` branches the sampler's stream alone.
+serve every variant of a seed (common random numbers across variants).
 
-The posterior is paper eq. (2): the Poisson prior (eq. 8-9), the odometry
-likelihood (eq. 11-14) and the appearance likelihood (eq. 15-19, corrected).
+A baseline cell runs a threshold baseline (:mod:`ptm_bench.evaluation.baselines`) or a peer, a robust
+pose-graph back end (:mod:`ptm_bench.evaluation.peers`), on the same dataset, calibrated on the same
+held-out runs as the posterior's cells. A peer assumes the posterior's noise: the configured odometry
+sigmas, the dataset's ``odometry_cov`` where it has one, and the tie sigma by the posterior's rule
+(:func:`ptm_bench.evaluation.calibration.topology_sigma`); the scored run reaches it without its labels
+and true poses. Its row holds the scores of its partition (a point mass) with the average precision of its
+pair scores, its chosen settings (``peer_settings``) and their source, and the time of its one run beside
+that of its calibration. A peer whose solver fails on the scored run raises :class:`PeerFailed` with the
+solver's message, which the sweep records as the cell's error.
+
+The posterior is paper eq. (2), built by :func:`ptm_bench.evaluation.models.build_models`
+from the cell's settings: the Poisson prior (eq. 8-9), the odometry likelihood
+(eq. 11-14) with its normalised ties and the appearance likelihood (eq. 15-19,
+corrected). The samplers run with the settings' values only; which moves and
+starts they use is the library's rule (``ptm.SamplerOptions``, docs/model.md §3.4),
+and the row records the move set and burn-in they ran (``inference_moves``,
+``inference_burn_in``).
 
     >>> import tempfile
     >>> from pathlib import Path
@@ -44,40 +58,34 @@ import ptm
 
 from ptm_bench.evaluation import scoring
 from ptm_bench.evaluation.baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
-from ptm_bench.evaluation.calibration import (
-    APPEARANCE_HYPERPARAMETERS,
-    calibration_datasets,
-    fitted_appearance,
-    penalty_radius,
-    prior_rate,
-    tie_area_margin,
-    tie_area_source,
-    topology_sigma,
-)
+from ptm_bench.evaluation.calibration import calibration_datasets, topology_sigma
 from ptm_bench.evaluation.datacache import dataset_for
+from ptm_bench.evaluation.models import build_models
+from ptm_bench.evaluation.peers import PEERS, PeerNoise, run_calibrated, score_peer
+from ptm_bench.simulation.code_version import code_version
 
-__all__ = ["CELL_VERSION", "GUIDED_FROM_N", "INFERENCE_KEY", "run_cell", "build_posterior", "disagreement",
-           "resolved_moves"]
+__all__ = ["cell_version", "INFERENCE_KEY", "PeerFailed", "run_cell", "build_posterior", "disagreement"]
 
-#: Version of the rules by which a cell computes its row (this file, ptm_bench.evaluation.calibration, ptm_bench.evaluation.scoring).
-#: It is part of every cell's definition digest: bump it when a change alters the rows of configs that did not
-#: change, and a rerun of a sweep recomputes its cells instead of reusing their rows.
-CELL_VERSION = "ptm_bench.cell/3"  # a version label (it keeps its name when modules move)
+
+class PeerFailed(RuntimeError):
+    """A peer's solver failed on the scored run; the message is the solver's."""
+
+
+def cell_version() -> str:
+    """The version of the rules by which a cell computes its row, ``"sha256:<16 hex>"``.
+
+    :func:`ptm_bench.simulation.code_version.code_version` of this module: a digest of the code of every module a
+    cell can run (``ptm``, the calibration, scoring, the simulator, ...), docstrings and comments aside. It is part
+    of every cell's definition digest, so a change of that code recomputes the rows on the next run of a sweep.
+    """
+    return code_version(__name__)
+
 
 #: Spawn-key branch of the inference streams, apart from the simulator's streams of the same seed.
 INFERENCE_KEY = 7_000
 #: Method "auto" enumerates up to ``exact_max_n`` detections unless the odometry term would be needed on more
 #: partitions than this (``ptm.exact_posterior``'s skip rule, known after one evaluation): then it samples.
 AUTO_EXACT_GLOBAL_EVALUATIONS = 25_000
-#: ``inference.moves = "auto"`` samples with the guided moves from this many detections on. Below it the default
-#: moves: on 12-detection runs with shared decors the guided ones mixed worst (results/ablations). From 25
-#: detections on the default ones leave a chain at all-one-place, with odometry (docs/model.md §3.4) and with
-#: appearance alone (four chains on a 25-detection grid: split R-hat 1.66, MAP all-one-place; guided: 1.001).
-GUIDED_FROM_N = 20
-#: Particles of each chain's SMC start (``inference.warm_up = "smc"``, :func:`ptm.online.smc_start`). On a
-#: 95-detection grid (grid9x9, seed 0) four passes of 16 took 7-12 s each and all ended on the truth, where the
-#: warm-up took 28 s and ended 245 nats below it.
-SMC_START_PARTICLES = 16
 TOP_K = 5
 TRACE_POINTS = 200
 
@@ -87,7 +95,7 @@ def run_cell(cell: dict) -> dict:
     started = time.perf_counter()
     settings, inputs = cell["settings"], cell["inputs"]
     dataset = dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], cell["seed"],
-                          inputs["generator_options"], inputs["cache_dir"], settings["appearance"]["components"])
+                          inputs["generator_options"], inputs["cache_dir"], settings.appearance.components)
     if dataset.labels is None:
         raise ValueError(f"dataset of {cell['cell_id']} has no ground-truth labels to score against")
     inference_started = time.perf_counter()
@@ -96,7 +104,8 @@ def run_cell(cell: dict) -> dict:
     else:
         row = _run_inference(cell, dataset)
     row["true_labels"] = json.dumps(list(ptm.canonical(dataset.labels)))
-    # The measured aliasing of the run (docs/model.md §6), beside the aliasing knob; NaN where the generator did not measure it.
+    # The measured aliasing of the run (docs/model.md §6), beside the aliasing knob; NaN where the generator did
+    # not measure it.
     row["aliasing_auc"] = float(dataset.meta.get("aliasing_auc", math.nan))
     row["inference_wall_s"] = time.perf_counter() - inference_started
     row["wall_s"] = time.perf_counter() - started
@@ -104,6 +113,8 @@ def run_cell(cell: dict) -> dict:
 
 
 def _run_baseline(cell: dict, dataset: ptm.Dataset) -> dict:
+    if cell["variant"] in PEERS:
+        return _run_peer(cell, dataset)
     features = BASELINE_FEATURES[cell["variant"]]
     held_out = calibration_datasets(cell)
     threshold = fit_threshold(held_out, features)
@@ -115,79 +126,69 @@ def _run_baseline(cell: dict, dataset: ptm.Dataset) -> dict:
     return row
 
 
+def _run_peer(cell: dict, dataset: ptm.Dataset) -> dict:
+    """The cell's peer, calibrated on the held-out runs, run on the scored run without its labels, and scored."""
+    odometry = cell["settings"].odometry
+    held_out = calibration_datasets(cell)
+    sigma_tie, tie_source = topology_sigma(odometry.sigma_topology, dataset.meta)
+    noise = PeerNoise(odometry.sigma_xy, odometry.sigma_theta, sigma_tie)
+    started = time.perf_counter()
+    result, calibration = run_calibrated(PEERS[cell["variant"]], dataset.replace(labels=None, true_poses=None),
+                                         held_out, noise)
+    if result.failed:
+        raise PeerFailed(result.error)
+    row = score_peer(result, dataset.labels)
+    del row["peer_error"]  # a failed run raised above
+    row["peer_settings"] = json.dumps(result.settings)
+    chosen = ", ".join(f"{name}={value}" for name, value in result.settings.items())
+    row["source_peer_settings"] = f"{chosen}: {calibration.source}"
+    row["sigma_topology"], row["source_sigma_topology"] = sigma_tie, tie_source
+    row["source_odometry_noise"] = (
+        "this run's odometry_cov" if dataset.odometry_cov is not None else
+        f"config: sigma_xy {odometry.sigma_xy:g} m, sigma_theta {odometry.sigma_theta:g} rad")
+    row["peer_run_wall_s"] = result.wall_s
+    row["calibration_wall_s"] = time.perf_counter() - started - result.wall_s
+    row["top5"] = json.dumps([[list(result.labels), 1.0]])
+    return row
+
+
 def build_posterior(cell: dict, dataset: ptm.Dataset) -> tuple[ptm.Posterior, dict]:
     """The posterior of the cell's variant, and the parameters it used with their sources (for the table).
 
-    Only what a user of a real robot has is read from ``dataset``: its odometry,
-    signatures, number of detections and the detector's radius (a sensor
-    specification). Never its labels, true poses, or the world's places: the
-    rest is configured or calibrated on the held-out runs (:mod:`ptm_bench.evaluation.calibration`).
-    For each parameter ``p`` the returned dict holds its value ``p`` and its provenance ``source_p``.
+    :func:`ptm_bench.evaluation.models.build_models` with the cell's settings, its held-out runs
+    (:func:`ptm_bench.evaluation.calibration.calibration_datasets`, generated or loaded only if a parameter needs
+    them) and the cell's importance-sampling stream.
     """
-    settings, models, used = cell["settings"], [], {}
     _, importance_seed = _inference_seeds(cell["seed"])
-    held_out = functools.cache(lambda: calibration_datasets(cell))  # generated or loaded only if some parameter needs them
-    if "odometry" in settings["models"]:
-        odometry = settings["odometry"]
-        used["penalty_radius"], used["source_penalty_radius"] = penalty_radius(odometry, held_out)
-        used["sigma_topology"], used["source_sigma_topology"] = topology_sigma(odometry, dataset.meta)
-        used["max_penalty"] = float(odometry["max_penalty"])
-        models.append(ptm.OdometryModel(
-            sigma_xy=odometry["sigma_xy"], sigma_theta=odometry["sigma_theta"],
-            sigma_topology=used["sigma_topology"], penalty_radius=used["penalty_radius"],
-            max_penalty=odometry["max_penalty"], n_importance=odometry["n_importance"], seed=importance_seed,
-            sampling_coordinates=odometry["sampling_coordinates"], penalty_proposal=odometry["penalty_proposal"],
-            fit_starts=odometry["fit_starts"],
-        ))
-        if odometry["tie_normaliser"]:
-            margin = tie_area_margin(dataset.meta)
-            normaliser = ptm.TieNormaliser.from_dead_reckoning(dataset, used["sigma_topology"], margin,
-                                                                odometry["tie_area"])
-            used["tie_area"] = normaliser.area
-            used["source_tie_area"] = tie_area_source(odometry["tie_area"], margin, "this run's dead-reckoned detections")
-            models.append(normaliser)
-    if "appearance" in settings["models"]:
-        appearance = settings["appearance"]
-        model, used["source_appearance"] = fitted_appearance(held_out(), appearance["model"], appearance["evidence"],
-                                                             appearance["prior_mean"], dataset.signatures,
-                                                             appearance["outliers"], appearance["max_outlier_share"])
-        names = APPEARANCE_HYPERPARAMETERS[appearance["model"]]
-        hyperparameters = {name: np.round(np.atleast_1d(getattr(model, name)), 6).tolist() for name in names}
-        if appearance["outliers"]:
-            hyperparameters.update(outlier_share=round(model.outlier_share, 6), outlier_scale=round(model.outlier_scale, 6))
-        used["appearance_hyperparameters"] = json.dumps(hyperparameters)
-        models.append(model)
-    used["prior_rate"], used["source_prior_rate"] = prior_rate(settings["inference"], dataset.n, held_out)
-    return ptm.Posterior(dataset, ptm.PoissonPrior(used["prior_rate"]), models), used
+    built = build_models(cell["settings"], dataset, functools.cache(lambda: calibration_datasets(cell)),
+                         importance_seed=importance_seed)
+    return ptm.Posterior(dataset, built.prior, built.models), built.used
 
 
 def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
-    inference = cell["settings"]["inference"]
+    inference = cell["settings"].inference
     posterior, used = build_posterior(cell, dataset)
-    sampler_seed, _ = _inference_seeds(cell["seed"], inference["sampler_stream"])
-    method = inference["method"]
-    moves = resolved_moves(inference["moves"], posterior.n)
-    burn_in = resolved_burn_in(inference)
+    sampler_seed, _ = _inference_seeds(cell["seed"])
+    method = inference.method
     result = None
     if method == "auto":  # the exact posterior is the reference wherever it is affordable
-        result = _affordable_exact_posterior(posterior, inference)
+        result = _affordable_exact_posterior(posterior, inference.exact_max_n)
         method = "tempered" if result is None else "exact"
     elif method == "exact":
-        result = ptm.exact_posterior(posterior, max_n=inference["exact_max_n"])
+        result = ptm.exact_posterior(posterior, max_n=inference.exact_max_n)
+    options = {"burn_in": inference.burn_in, "chains": inference.chains, "max_doublings": inference.max_doublings,
+               "moves": inference.moves}
     if method == "tempered":
-        result = ptm.tempered_mcmc(posterior, inference["n_samples"], temperatures=inference["temperatures"],
-                                   burn_in=burn_in, thin=inference["thin"], seed=sampler_seed,
-                                   chains=inference["chains"], max_doublings=inference["max_doublings"],
-                                   estimate=inference["estimate"], **_sampler_options(moves, inference, posterior))
+        result = ptm.tempered_mcmc(posterior, inference.n_samples, seed=sampler_seed,
+                                   temperatures=inference.temperatures, **options)
     elif method == "mcmc":
-        result = ptm.mcmc(posterior, inference["n_samples"], burn_in=burn_in, thin=inference["thin"],
-                          seed=sampler_seed, chains=inference["chains"], max_doublings=inference["max_doublings"],
-                          estimate=inference["estimate"], **_sampler_options(moves, inference, posterior))
+        result = ptm.mcmc(posterior, inference.n_samples, seed=sampler_seed, **options)
+    sampled = method in ("mcmc", "tempered")
     row = scoring.score(result, dataset.labels)
     row.update(used)
     row["inference_method"] = method
-    row["inference_moves"] = moves if method in ("mcmc", "tempered") else ""
-    row["inference_burn_in"] = burn_in if method in ("mcmc", "tempered") else ""
+    row["inference_moves"] = result.diagnostics["moves"] if sampled else ""
+    row["inference_burn_in"] = result.diagnostics["burn_in"] if sampled else ""
     row["warning"] = disagreement(result.diagnostics)
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
@@ -197,50 +198,15 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     return row
 
 
-def _affordable_exact_posterior(posterior: ptm.Posterior, inference: dict) -> ptm.PTM | None:
+def _affordable_exact_posterior(posterior: ptm.Posterior, exact_max_n: int) -> ptm.PTM | None:
     """The exact posterior if N <= ``exact_max_n`` and the odometry term is needed on at most
     ``AUTO_EXACT_GLOBAL_EVALUATIONS`` partitions, else None (method "auto" then samples)."""
-    if posterior.n > inference["exact_max_n"]:
+    if posterior.n > exact_max_n:
         return None
     try:
-        return ptm.exact_posterior(posterior, max_n=inference["exact_max_n"],
-                                   max_global_evaluations=AUTO_EXACT_GLOBAL_EVALUATIONS)
+        return ptm.exact_posterior(posterior, max_n=exact_max_n, max_global_evaluations=AUTO_EXACT_GLOBAL_EVALUATIONS)
     except ptm.exact.ExactBudgetExceeded:  # the cheap terms leave too many partitions in play
         return None
-
-
-def resolved_moves(moves: str, n: int) -> str:
-    """The move set ``inference.moves`` stands for on ``n`` detections: ``"auto"`` is ``"guided"`` from
-    ``GUIDED_FROM_N`` detections on, else ``"default"``."""
-    if moves != "auto":
-        return moves
-    return "guided" if n >= GUIDED_FROM_N else "default"
-
-
-def resolved_burn_in(inference: dict) -> int:
-    """The steps each chain discards first: ``inference.burn_in``, or half of ``n_samples`` when unset."""
-    return inference["n_samples"] // 2 if inference["burn_in"] is None else inference["burn_in"]
-
-
-def _sampler_options(moves: str, inference: dict, posterior: ptm.Posterior) -> dict:
-    """The sampler's moves, delayed acceptance and start for a resolved move set (:func:`resolved_moves`):
-    with ``inference.warm_up = "smc"`` every chain starts from its own SMC pass (``SMC_START_PARTICLES``);
-    otherwise ``"guided"`` always warms up (docs/model.md §3.4), the others with ``inference.warm_up = "all"``. With
-    odometry, ``inference.map_window`` = "default" or "all" adds the map-steered window to the default moves
-    (:func:`ptm.sampler.default_moves`), and "all" steers the guided moves' window by the map too."""
-    unscreened = {"unscreened_share": inference["unscreened_share"]}
-    smc = {"warm_up": 0, "smc_start": SMC_START_PARTICLES} if inference["warm_up"] == "smc" else {}
-    map_window = inference["map_window"]
-    if moves == "guided":
-        return {**ptm.sampler.guided_options(posterior, inference["delayed_acceptance"], map_window == "all"),
-                **unscreened, **smc}
-    chosen = [(ptm.moves.SplitMerge(), 1.0)] if moves == "paper" else None
-    steered = moves == "default" and map_window in ("default", "all")
-    surrogate = ptm.surrogate.OdometrySurrogate(posterior) if steered else None
-    if surrogate is not None and surrogate.terms:  # without a map, the default moves as they were
-        chosen = ptm.sampler.default_moves(surrogate)
-    warm_up = ptm.sampler.WARM_UP_PER_DETECTION * posterior.n if inference["warm_up"] == "all" else 0
-    return {"moves": chosen, "delayed_acceptance": inference["delayed_acceptance"], "warm_up": warm_up, **unscreened, **smc}
 
 
 def disagreement(diagnostics: dict) -> str:
@@ -273,7 +239,7 @@ def disagreement(diagnostics: dict) -> str:
 
 
 def _strays(diagnostics: dict) -> str:
-    """The warning's account of stray chains (:meth:`ptm.sampler.SampleRecorder.strays`), or ""."""
+    """The warning's account of stray chains (:meth:`ptm.recorder.SampleRecorder.strays`), or ""."""
     strays = diagnostics.get("stray_chains", 0)
     if not strays:
         return ""
@@ -285,12 +251,9 @@ def _strays(diagnostics: dict) -> str:
             f"found (at most {diagnostics['stray_mass_max']:.2g} of the renormalised mass each): {kept}")
 
 
-def _inference_seeds(seed: int, sampler_stream: int = 0) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
-    """The cell's sampler and importance-sampling seeds; a ``sampler_stream`` other than 0 branches the sampler's
-    alone (``inference.sampler_stream``), so that the posterior stays the same."""
+def _inference_seeds(seed: int) -> tuple[np.random.SeedSequence, np.random.SeedSequence]:
+    """The cell's sampler and importance-sampling seeds, spawned from the cell's seed on the inference branch."""
     sampler, importance = np.random.SeedSequence(seed, spawn_key=(INFERENCE_KEY,)).spawn(2)
-    if sampler_stream:
-        sampler = np.random.SeedSequence(sampler.entropy, spawn_key=(*sampler.spawn_key, sampler_stream))
     return sampler, importance
 
 

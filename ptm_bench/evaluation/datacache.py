@@ -5,12 +5,13 @@ number of Fourier components) and by what the simulator makes of them: the
 world's *content* and the simulator's version. :func:`world_identity` gives
 both: for a preset name or a floor ``.toml`` path, the SHA-256 of the file's
 bytes (resolved as ``ptm_bench.world.floorplan.load_world`` resolves it); for a
-procedural world, the generator table itself; and for either,
-``ptm_bench.simulation.generate.GENERATOR_VERSION`` (bumped whenever a change to the
-simulator changes the datasets it writes). Editing a world file or bumping
-the version therefore gives a new cache file, and — since
+procedural world, the generator table itself; and for either, the
+simulator's version (:func:`ptm_bench.simulation.code_version.generator_version`,
+a digest of the code of every module the generator imports). Editing a world
+file or the simulator's code therefore gives a new cache file (a dataset
+cached by another version of the simulator is never read again) and, since
 ``ptm_bench.evaluation.experiment`` puts the same identity into every cell's definition
-digest — recomputes the sweep cells that used the old one.
+digest, recomputes the sweep cells that used the old one.
 
 The simulator is deterministic in these (docs/model.md §5), so a cached file is
 exactly what generation would give. Several model variants and the
@@ -39,9 +40,9 @@ import zlib
 from pathlib import Path
 
 import ptm
+from ptm_bench.simulation.code_version import generator_version
 
-__all__ = ["dataset_for", "dataset_path", "is_recorded", "load_recorded", "resolve_world", "simulator_version",
-           "world_identity"]
+__all__ = ["dataset_for", "dataset_path", "is_recorded", "load_recorded", "resolve_world", "world_identity"]
 
 
 def is_recorded(world_spec) -> bool:
@@ -70,14 +71,6 @@ def resolve_world(world_spec, seed: int):
     return floorplan.corridor_grid(**params)
 
 
-def simulator_version() -> str:
-    """``ptm_bench.simulation.generate.GENERATOR_VERSION``: the version of the simulator that writes the datasets."""
-    # Imported here, not at the top: generate imports MuJoCo, which parsing configs does not need.
-    from ptm_bench.simulation import generate
-
-    return generate.GENERATOR_VERSION
-
-
 def world_identity(world_spec) -> dict:
     """What decides a world's datasets besides the condition: its spec, its content, the simulator's version.
 
@@ -91,21 +84,23 @@ def world_identity(world_spec) -> dict:
         missing = [name for name in files if not Path(name).is_file()]
         if missing:
             raise ValueError(f"world {world_spec.get('name')!r}: no recorded dataset file at {', '.join(missing)}")
-        return {"world": world_spec, "files_sha256": [hashlib.sha256(Path(name).read_bytes()).hexdigest() for name in files]}
-    identity = {"world": world_spec, "simulator": simulator_version()}
+        return {"world": world_spec,
+                "files_sha256": [hashlib.sha256(Path(name).read_bytes()).hexdigest() for name in files]}
+    identity = {"world": world_spec, "simulator": generator_version()}  # read from the code: MuJoCo is not imported
     if isinstance(world_spec, str):
         from ptm_bench.world.floorplan import load_world
 
         source = Path(load_world(world_spec).source)  # the file floorplan's own lookup reads
         identity["world_sha256"] = hashlib.sha256(source.read_bytes()).hexdigest()
     elif not isinstance(world_spec, dict):
-        raise ValueError(f"world: a world is a preset name, a floor .toml path or a generator table, got {world_spec!r}")
+        raise ValueError(f"world: a world is a preset name, a floor .toml path or a generator table, "
+                         f"got {world_spec!r}")
     return identity
 
 
 def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator_options=None, cache_dir=None,
                  components: int | None = None) -> Path | None:
-    """The cache file of one condition and seed (None without ``cache_dir``); its name ends in a digest of the identity."""
+    """The cache file of one condition and seed (None without ``cache_dir``), named with a digest of the identity."""
     if is_recorded(world_spec):
         return Path(world_spec["dataset"])  # recorded, not generated: the file is the dataset
     if cache_dir is None:
@@ -118,7 +113,7 @@ def dataset_path(world_spec, aliasing: float, noise: float, seed: int, generator
 
 
 def _load_cached(path: Path) -> ptm.Dataset:
-    """A cached dataset; a truncated or foreign file is a ``ValueError`` naming it (the cache is never silently wrong)."""
+    """A cached dataset; a truncated or foreign file is a ``ValueError`` naming it (never a silently wrong cache)."""
     try:
         return ptm.Dataset.load(path)
     except (ValueError, OSError, EOFError, KeyError, TypeError, zipfile.BadZipFile, zlib.error) as error:

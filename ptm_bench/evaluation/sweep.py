@@ -107,7 +107,8 @@ def read_table(path) -> pd.DataFrame:
 
 def comparable(table: pd.DataFrame) -> pd.DataFrame:
     """The table without its timing columns, for comparing two runs of one config."""
-    return table.drop(columns=[column for column in table.columns if TIMING_COLUMNS.search(column)]).reset_index(drop=True)
+    timing = [column for column in table.columns if TIMING_COLUMNS.search(column)]
+    return table.drop(columns=timing).reset_index(drop=True)
 
 
 def run_sweep(
@@ -401,7 +402,8 @@ def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator
                 elif attempt < max_attempts:
                     queue.append((cell, attempt + 1))
                 else:
-                    yield cell, _failed(f"worker died (exit code {process.exitcode}) on every one of {attempt} attempts", attempt)
+                    yield cell, _failed(f"worker died (exit code {process.exitcode}) on every one of {attempt} "
+                                        "attempts", attempt)
     finally:
         for process, _, _ in running.values():
             process.terminate()

@@ -22,6 +22,10 @@
   co-assignment difference) and wall time against the number of detections,
   one point per cell and the mean per world (a sweep over worlds of several
   sizes, e.g. ``experiments/scale.toml``).
+* :func:`cost_accuracy` — each method's (posterior variant, threshold baseline,
+  peer) mean ARI and mean loop-closure average precision against its mean wall
+  time per cell on a log axis, one point per method, or per method and
+  condition: whether the posterior is worth its cost.
 * :func:`pit_histograms` — per world and appearance model, the histogram of the
   probability integral transform of held-out revisits, one line per signature
   component (flat at 1 when the predictive is calibrated).
@@ -32,7 +36,8 @@
     >>> dataset = ptm.Dataset(odometry=ptm.se2.relative_pose(poses[:-1], poses[1:]), labels=[0, 1, 0], true_poses=poses)
     >>> trajectories(dataset, folder / "trajectory.png").name
     'trajectory.png'
-    >>> top_topologies([poses, poses], [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0), path=folder / "top.png").name
+    >>> top_topologies([poses, poses], [((0, 1, 0), 0.9), ((0, 1, 2), 0.1)], truth=(0, 1, 0),
+    ...                path=folder / "top.png").name
     'top.png'
 """
 
@@ -42,6 +47,7 @@ import textwrap
 from pathlib import Path
 
 import matplotlib
+import matplotlib.lines
 import matplotlib.patches
 import matplotlib.ticker
 import numpy as np
@@ -51,8 +57,8 @@ from ptm.dataset import atomic_write
 from ptm.se2 import compose, dead_reckoning
 
 
-__all__ = ["dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram", "sampler_traces", "scaling",
-           "top_topologies", "topology_string", "trajectories"]
+__all__ = ["cost_accuracy", "dataset_overview", "mass_heatmap", "pit_histograms", "reliability_diagram",
+           "sampler_traces", "scaling", "top_topologies", "topology_string", "trajectories"]
 
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
 
@@ -192,7 +198,8 @@ def mass_heatmap(table, path: Path, value: str = "gt_mass") -> Path:
     figure = Figure(figsize=(3.4 * len(variants) + 1.8, 3.6), layout="constrained")
     axes_row = figure.subplots(1, len(variants), squeeze=False, sharey=True)
     for axes, variant in zip(axes_row[0], variants):
-        means = ok[ok["variant"] == variant].pivot_table(index="aliasing", columns="noise", values=value, aggfunc="mean")
+        means = ok[ok["variant"] == variant].pivot_table(index="aliasing", columns="noise", values=value,
+                                                         aggfunc="mean")
         grid = means.reindex(index=aliasing, columns=noise).to_numpy(dtype=float)
         image = axes.imshow(grid, vmin=0, vmax=1, cmap="viridis", origin="lower", aspect="auto")
         for (row, column), number in np.ndenumerate(grid):
@@ -325,6 +332,52 @@ def scaling(table, path: Path, title: str = "") -> Path:
     panels[0].legend(fontsize=7, loc="best")
     if title:
         figure.suptitle(title, fontsize=10)
+    return _save(figure, path)
+
+
+#: Markers of the conditions in :func:`cost_accuracy`, in order; it draws at most this many conditions apart.
+CONDITION_MARKERS = "osD^"
+
+
+def cost_accuracy(points, path: Path, title: str = "") -> Path:
+    """Mean ARI and mean loop-closure AP against mean wall time per cell (log x), in two panels.
+
+    ``points`` is a table with ``variant`` (the method), ``ari``, ``lc_ap`` and ``wall_s``, one row per point, and
+    optionally ``condition``, a label per row: one colour per method, one marker per condition (at most
+    ``len(CONDITION_MARKERS)`` conditions). A value that is NaN, or a wall time that is not positive, is left out
+    of its panel.
+    """
+    if not len(points):
+        raise ValueError("cost_accuracy: no points to draw")
+    conditions = list(dict.fromkeys(points["condition"])) if "condition" in points else [""]
+    if len(conditions) > len(CONDITION_MARKERS):
+        raise ValueError(f"cost_accuracy: at most {len(CONDITION_MARKERS)} conditions, got {len(conditions)}")
+    methods = list(dict.fromkeys(points["variant"]))
+    figure = Figure(figsize=(11, 4.6))
+    panels = figure.subplots(1, 2, sharex=True)
+    for axes, (column, label) in zip(panels, (("ari", "mean ARI"), ("lc_ap", "mean loop-closure AP"))):
+        for _, row in points.iterrows():
+            value, wall = float(row[column]), float(row["wall_s"])
+            if not (np.isfinite(value) and np.isfinite(wall) and wall > 0):
+                continue
+            marker = CONDITION_MARKERS[conditions.index(row["condition"] if "condition" in points else "")]
+            axes.plot(wall, value, marker, color=f"C{methods.index(row['variant']) % 10}", markersize=7, alpha=0.85)
+        axes.set_xscale("log")
+        axes.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        axes.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda value, _: f"{value:g}"))
+        axes.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        axes.set_ylim(-0.05, 1.05)
+        axes.set_xlabel("mean wall time per cell [s]")
+        axes.set_ylabel(label)
+        axes.grid(True, which="major", alpha=0.3)
+    handles = [matplotlib.lines.Line2D([], [], marker="o", linestyle="", color=f"C{index % 10}", label=method)
+               for index, method in enumerate(methods)]
+    if len(conditions) > 1:
+        handles += [matplotlib.lines.Line2D([], [], marker=marker, linestyle="", color="0.4", label=condition)
+                    for marker, condition in zip(CONDITION_MARKERS, conditions)]
+    panels[1].legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+    if title:
+        figure.suptitle(textwrap.fill(title, width=110), fontsize=10)
     return _save(figure, path)
 
 

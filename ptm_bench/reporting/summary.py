@@ -15,14 +15,17 @@ probabilities over 10 bins, exact from the per-cell ``reliability`` tables
 (:func:`ptm_bench.evaluation.scoring.pooled_reliability`); the Brier score, the mean of
 the cells' ``brier`` weighted by ``n_pairs``; the mean log score of the truth,
 log max(gt_mass, 1e-6); and the share of confidently wrong runs (MAP
-probability >= 0.9, MAP not the truth). It puts the paper's reported figures
+probability >= 0.9, MAP not the truth). It sets every method side by side per condition (:func:`side_by_side`: each
+posterior variant, each threshold baseline and each peer, with AP, ARI, F1, ECE
+and the mean wall time per cell), puts the paper's reported figures
 (the config's ``[paper]`` table) beside ours, lists where each variant's
 parameters came from (the ``source_*`` columns), lists failed cells with their
 errors, and draws the figures of :mod:`ptm_bench.reporting.plots`: those of the first
 scored seed (each top topology on its own optimised map, the Laplace mode of its pose
 graph, where the variant has an odometry model; the trajectory figure with the MAP
 topology's map beside the reference and dead reckoning), the ground-truth-mass heat
-map, the reliability diagram, and, for a sweep over several worlds, accuracy, chain
+map, the reliability diagram, each method's mean ARI and AP against its mean wall time
+(``cost_accuracy.png``), and, for a sweep over several worlds, accuracy, chain
 agreement and wall time against the number of detections.
 
     $ ptm-bench run experiments/exp3_nested.toml      # runs the cells, then writes the summary
@@ -34,21 +37,24 @@ from __future__ import annotations
 import json
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-import ptm
 from ptm.dataset import atomic_write
+from ptm.recorder import RENORMALISE_COVERAGE, STRAY_CHAIN_MASS
 from ptm.se2 import dead_reckoning
 
 from ptm_bench.evaluation import scoring
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded
-from ptm_bench.evaluation.experiment import Experiment, expand_cells
+from ptm_bench.evaluation.experiment import PEER_NAMES, Experiment, expand_cells
+from ptm_bench.evaluation.models import build_models
 from ptm_bench.reporting import plots
 
-__all__ = ["aggregate", "calibration_by_variant", "current_rows", "markdown_table", "write_summary"]
+__all__ = ["aggregate", "calibration_by_variant", "current_rows", "markdown_table", "method_kinds", "side_by_side",
+           "write_summary"]
 
 CONDITION = ["world", "aliasing", "noise"]
 #: The measured aliasing of a cell's dataset, shown beside the aliasing knob when the table has it.
@@ -148,6 +154,44 @@ def calibration_by_variant(table: pd.DataFrame) -> pd.DataFrame:
             **_pooled_calibration(group),
         })
     return pd.DataFrame(rows)
+
+
+def method_kinds(experiment: Experiment) -> dict[str, str]:
+    """Every method of the experiment, in the config's order, and its kind: ``posterior`` (a model variant),
+    ``baseline`` (a threshold baseline) or ``peer`` (a robust back end, ``ptm_bench.evaluation.peers``)."""
+    kinds = {variant.name: "posterior" for variant in experiment.variants}
+    for baseline in experiment.baselines:
+        kinds[baseline] = "peer" if baseline in PEER_NAMES else "baseline"
+    return kinds
+
+
+#: The scores of the side-by-side table, each a mean over a method's finished cells of a condition (``ece``
+#: pooled over their pairs).
+SIDE_BY_SIDE_SCORES = ("lc_ap", "ari", "lc_f1", "ece", "wall_s")
+
+
+def side_by_side(experiment: Experiment, table: pd.DataFrame) -> pd.DataFrame:
+    """One row per condition (world x aliasing x noise) and method: its kind (:func:`method_kinds`), its finished
+    and failed cells, and :data:`SIDE_BY_SIDE_SCORES` over the finished ones (NaN where none finished).
+
+    Conditions keep the table's order, methods the config's: each posterior variant, then the baselines and
+    peers as the config lists them.
+    """
+    if not len(table):
+        return pd.DataFrame()
+    kinds = method_kinds(experiment)
+    order = {name: index for index, name in enumerate(kinds)}
+    summary = aggregate(table)
+    means = summary.set_index(CONDITION + ["variant"]) if len(summary) else None
+    conditions, rows, rank = {}, [], []
+    for key, group in table.groupby(CONDITION + ["variant"], sort=False):
+        finished = means.loc[key] if means is not None and key in means.index else None
+        rows.append({**dict(zip(CONDITION + ["variant"], key)), "kind": kinds.get(key[-1], ""),
+                     "cells": int((group["status"] == "ok").sum()), "failed": int((group["status"] != "ok").sum()),
+                     **{score: math.nan if finished is None else finished[score] for score in SIDE_BY_SIDE_SCORES}})
+        rank.append((conditions.setdefault(key[:-1], len(conditions)), order.get(key[-1], len(order))))
+    frame = pd.DataFrame(rows)
+    return frame.iloc[sorted(range(len(frame)), key=rank.__getitem__)].reset_index(drop=True)
 
 
 def _with_calibration(ok: pd.DataFrame) -> pd.DataFrame:
@@ -266,17 +310,17 @@ def _condition_columns(frame: pd.DataFrame) -> list[str]:
 
 def _provenance(experiment: Experiment) -> str:
     """Which seeds were scored and what the calibration came from, for simulated and for recorded worlds."""
-    recorded = [world for world in experiment.sweep["worlds"] if is_recorded(world)]
-    simulated = len(experiment.sweep["worlds"]) - len(recorded)
+    recorded = [world for world in experiment.sweep.worlds if is_recorded(world)]
+    simulated = len(experiment.sweep.worlds) - len(recorded)
     parts = []
     if simulated:
-        parts.append(f"Scored seeds {experiment.sweep['seeds']}; held-out calibration seeds "
-                     f"{experiment.sweep['calibration_seeds']}.")
+        parts.append(f"Scored seeds {list(experiment.sweep.seeds)}; held-out calibration seeds "
+                     f"{list(experiment.sweep.calibration_seeds)}.")
     if recorded:
         calibrations = "; ".join(f"{world['name']} on {' + '.join(Path(path).stem for path in world['calibration'])}"
                                  for world in recorded)
         parts.append(f"Recorded runs, each calibrated on other runs ({calibrations}); on a recorded run the seeds "
-                     f"{experiment.sweep['seeds']} are the inference's.")
+                     f"{list(experiment.sweep.seeds)} are the inference's.")
     return " ".join(parts)
 
 
@@ -313,10 +357,12 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
     lines += _left_out_note(left_out)
     if experiment.paper and len(summary):
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
+    if len(table):
+        lines += _side_by_side_section(experiment, table)
     if len(summary):
         columns = _condition_columns(summary) + [
-            "variant", "seeds", "detections", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct", "ari",
-            "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "chains_agree",
+            "variant", "seeds", "detections", "gt_mass", "gt_mass_min", "gt_mass_max", "gt_rank_median", "map_correct",
+            "ari", "lc_f1", "lc_ap", "expected_places", "map_places", "true_places", "rhat_over_1.1", "chains_agree",
             "odometry_ess", "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
         lines += _odometry_ess_note(summary)
@@ -338,7 +384,7 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
 
 #: The files :func:`_draw_figures` may write; those of a variant, world or axis no longer drawn are removed.
 FIGURE_PATTERNS = ("trajectory.png", "top5_*.png", "traces_*.png", "gt_mass_heatmap.png", "reliability.png",
-                   "scaling.png")
+                   "scaling.png", "cost_accuracy.png")
 
 
 def _remove_undrawn_figures(results_dir: Path, drawn: set) -> None:
@@ -360,6 +406,50 @@ def _left_out_note(left_out: dict) -> list[str]:
     if left_out["missing"]:
         notes.append(f"{left_out['missing']} cells of the config have no row yet.")
     return [" ".join(notes), ""] if notes else []
+
+
+def _side_by_side_section(experiment: Experiment, table: pd.DataFrame) -> list[str]:
+    return [
+        "## Side by side",
+        "",
+        "Every method on the same runs, per condition: each posterior variant (`ari` of its MAP topology, `lc_f1` "
+        "of the pairs with co-assignment > 0.5, `lc_ap` and `ece` of its co-assignment probabilities), the "
+        "threshold baselines and the peers, the robust pose-graph back ends roboticists run instead (GNC, DCS, "
+        "PCM, dead-reckoned distance: their accepted closures' partition for `ari` and `lc_f1`, a point mass for "
+        "`ece`, and their pair scores for `lc_ap`). Baselines and peers choose their settings on the same "
+        "held-out runs as the posterior's parameters. `cells` finished (their means are shown; `ece` pooled "
+        "over their pairs), `failed` ended in an error (listed under Failed cells), `wall_s` is the mean wall "
+        "time per cell, calibration included. The figure `cost_accuracy.png` draws ARI and AP against it.",
+        "",
+        markdown_table(side_by_side(experiment, table)[[*CONDITION, "variant", "kind", "cells", "failed",
+                                                        *SIDE_BY_SIDE_SCORES]]),
+        "",
+    ]
+
+
+def _cost_points(experiment: Experiment, table: pd.DataFrame) -> tuple[pd.DataFrame, str]:
+    """The points of ``cost_accuracy.png`` and how they are taken: per method and condition where the conditions
+    are few (at most ``len(plots.CONDITION_MARKERS)``), else per method over every finished cell."""
+    kinds = method_kinds(experiment)
+    side = side_by_side(experiment, table)
+    side = side[side["cells"] > 0]
+    conditions = side[CONDITION].drop_duplicates()
+    if len(conditions) == 1:
+        points, taken = side, "one point per method"
+    elif len(conditions) <= len(plots.CONDITION_MARKERS):
+        varying = [column for column in CONDITION if conditions[column].nunique() > 1]
+        labels = [", ".join(f"{row[column]}" if column == "world" else f"{column} {row[column]:g}"
+                            for column in varying) for _, row in side.iterrows()]
+        points, taken = side.assign(condition=labels), "one point per method and condition"
+    else:
+        ok = table[table["status"] == "ok"]
+        points = ok.groupby("variant", sort=False)[["ari", "lc_ap", "wall_s"]].mean().reset_index()
+        order = {name: index for index, name in enumerate(kinds)}
+        points = points.sort_values("variant", key=lambda names: names.map(lambda name: order.get(name, len(order))),
+                                    kind="stable")
+        taken = f"one point per method, the mean over its cells of {len(conditions)} conditions"
+    named = [f"{name} ({kinds[name]})" if name in kinds else name for name in points["variant"]]
+    return points.assign(variant=named), taken
 
 
 def _calibration_section(table: pd.DataFrame, summary: pd.DataFrame) -> list[str]:
@@ -410,8 +500,8 @@ def _provenance_section(table: pd.DataFrame) -> list[str]:
 
 
 def _estimate_entry(group: pd.DataFrame) -> str:
-    """How a sampled variant's cells turned chains into probabilities (``diag_estimate``, ``ptm.mcmc``'s
-    ``estimate``), with the lowest chain coverage where some renormalised; "" for exact or older rows."""
+    """How a sampled variant's cells turned chains into probabilities (``diag_estimate``: the sampler's choice,
+    :mod:`ptm.recorder`), with the lowest chain coverage where some renormalised; "" for exact rows."""
     if "diag_estimate" not in group:
         return ""
     used = group["diag_estimate"].dropna()
@@ -425,9 +515,8 @@ def _estimate_entry(group: pd.DataFrame) -> str:
     if coverage is not None and coverage.notna().any():
         low, high = f"{coverage.min():.3g}", f"{coverage.max():.3g}"
         detail = (f" (the worst chain's share of the visited topologies' renormalised mass: "
-                  f"{low if low == high else f'{low} to {high}'}; \"auto\" renormalises from "
-                  f"{ptm.sampler.RENORMALISE_COVERAGE:g}, stray chains below {ptm.sampler.STRAY_CHAIN_MASS:g} "
-                  "set aside)")
+                  f"{low if low == high else f'{low} to {high}'}; the sampler renormalises from "
+                  f"{RENORMALISE_COVERAGE:g}, stray chains below {STRAY_CHAIN_MASS:g} set aside)")
     return "  - `estimate`: " + "; ".join(parts) + detail
 
 
@@ -457,11 +546,10 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
     first = ok.iloc[0]
     condition = ok[(ok["world"] == first["world"]) & (ok["aliasing"] == first["aliasing"])
                    & (ok["noise"] == first["noise"]) & (ok["seed"] == first["seed"])]
-    world_spec = next(world for world in experiment.sweep["worlds"]
-                      if (world if isinstance(world, str) else world["name"]) == first["world"])
+    world_spec = experiment.sweep.worlds[experiment.sweep.world_names().index(first["world"])]
     dataset = dataset_for(world_spec, float(first["aliasing"]), float(first["noise"]), int(first["seed"]),
-                          experiment.sweep["generator_options"], results_dir / "datasets",
-                          experiment.settings["appearance"]["components"])
+                          experiment.sweep.generator_options, results_dir / "datasets",
+                          experiment.settings.appearance.components)
     where = f"{first['world']}, aliasing {first['aliasing']:g}, noise {first['noise']:g}, seed {first['seed']}"
     figures = []
     truth = tuple(json.loads(first["true_labels"]))
@@ -499,6 +587,11 @@ def _draw_figures(experiment: Experiment, table: pd.DataFrame, results_dir: Path
     if ok["world"].nunique() > 1:
         caption = "Accuracy, agreement between independent chains and wall time against the number of detections"
         figures.append((caption, plots.scaling(ok, results_dir / "scaling.png")))
+    points, taken = _cost_points(experiment, table)
+    caption = (f"Mean ARI and loop-closure AP against mean wall time per cell (log scale) of every posterior variant, "
+               f"baseline and peer: {taken}")
+    figures.append((caption, plots.cost_accuracy(points, results_dir / "cost_accuracy.png",
+                                                     title=f"{experiment.name}: accuracy against cost")))
     reliability = {variant: scoring.pooled_reliability(group["reliability"])
                    for variant, group in ok.groupby("variant", sort=False)
                    if "reliability" in group and group["reliability"].apply(lambda value: isinstance(value, str)).any()}
@@ -513,17 +606,15 @@ def _modes(experiment: Experiment, row, dataset, topologies) -> list | None:
     the row used (:meth:`ptm.odometry.OdometryTerm.mode_poses`; None for a fit that did not converge), or None
     for a variant without an odometry model (a baseline, appearance alone) or a dataset without odometry.
 
-    The mode does not depend on the landmark-density penalty, so the model needs only the variant's
-    ``sigma_xy``/``sigma_theta`` (used where the dataset has no ``odometry_cov``), its ``fit_starts`` and the
-    row's ``sigma_topology``.
+    The model is the variant's, from the builder that made the row's posterior
+    (:func:`ptm_bench.evaluation.models.build_models`), without held-out runs: the mode does not depend on the
+    prior or the landmark-density penalty (docs/model.md §3.3).
     """
-    variant = next((variant for variant in experiment.variants if variant["name"] == row["variant"]), None)
-    if variant is None or "odometry" not in variant["models"] or dataset.odometry is None:
+    variant = next((variant for variant in experiment.variants if variant.name == row["variant"]), None)
+    if variant is None or "odometry" not in variant.models or dataset.odometry is None:
         return None
-    settings = variant["odometry"]
-    term = ptm.OdometryModel(sigma_xy=settings["sigma_xy"], sigma_theta=settings["sigma_theta"],
-                             sigma_topology=float(row["sigma_topology"]),
-                             fit_starts=settings["fit_starts"]).bind(dataset)
+    built = build_models(replace(variant, models=("odometry",)), dataset, held_out=None)
+    term = built.models[0].bind(dataset)
     modes = []
     for labels in topologies:
         try:

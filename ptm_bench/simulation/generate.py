@@ -33,6 +33,7 @@ from ptm.se2 import relative_pose, wrap_angle
 from ptm.features import fourier_signature
 
 from ptm_bench.simulation.aliasing import signature_auc
+from ptm_bench.simulation.code_version import generator_version
 from ptm_bench.simulation.detector import detect
 from ptm_bench.world.floorplan import Floorplan, assign_palettes, load_world, palette_count, palette_library
 from ptm_bench.simulation.odometry_noise import OdometryNoise, detection_odometry, sample_odometry
@@ -42,9 +43,7 @@ from ptm_bench.simulation.scene import build_mjcf, compile_scene, place_sites
 
 import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
 
-__all__ = ["GENERATOR_VERSION", "build_world", "generate_dataset", "true_odometry"]
-
-GENERATOR_VERSION = "ptm_bench.generate/3"  # a version label, kept when modules move; 2: decor panels on a hazy uniform background, 3 cm near plane; 3: U-turns driven
+__all__ = ["build_world", "generate_dataset", "true_odometry"]
 
 
 def generate_dataset(
@@ -148,7 +147,7 @@ def generate_dataset(
         "aliasing_auc": signature_auc(signatures, labels),
         "noise": float(noise),
         "seed": int(seed),
-        "generator_version": GENERATOR_VERSION,
+        "generator_version": generator_version(),  # the simulator's code (ptm_bench.simulation.code_version)
         "min_place_spacing": floor.min_place_spacing,
         "detection_radius": floor.detection_radius,
         "places": {str(place_id): list(xy) for place_id, xy in sorted(places.items())},
