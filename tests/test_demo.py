@@ -6,7 +6,8 @@ from ptm_bench.cli import main
 def test_demo_prints_scores_and_writes_figures(tmp_path, capsys):
     assert main(["demo", "--world", "short_loop", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
-    for method in ("odometry", "odometry+appearance", "greedy_odometry", "appearance_threshold"):
+    for method in ("odometry", "odometry+appearance", "greedy_odometry", "appearance_threshold", "gnc", "dcs", "pcm",
+                   "distance_rank"):
         assert f"\n{method} " in printed
     assert "ground truth" in printed
     written = {path.name for path in tmp_path.iterdir()}

@@ -316,11 +316,12 @@ def describe(experiment: Experiment) -> str:
             f"({json.dumps([variant.name for variant in experiment.variants] + list(experiment.baselines))})")
 
 
-#: The embedded experiment: one world, one seed, two calibration seeds, two models, two baselines.
+#: The embedded experiment: one world, one seed, two calibration seeds, two models, the two threshold baselines
+#: and the four robust pose-graph peers.
 DEMO_CONFIG = {
     "name": "demo",
     "description": "ptm-bench demo: one simulated run, inference with and without appearance, scored.",
-    "baselines": ["greedy_odometry", "appearance_threshold"],
+    "baselines": ["greedy_odometry", "appearance_threshold", "gnc", "dcs", "pcm", "distance_rank"],
     "sweep": {"worlds": ["nested_loops"], "aliasing": [0.0], "noise": [1.0], "seeds": [0],
               "calibration_seeds": [1000, 1001]},
     "inference": {"n_samples": 10000, "burn_in": 1000, "chains": 4},
