@@ -74,8 +74,8 @@ import ptm
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
 
 __all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance",
-           "penalty_radius", "place_separation", "places_per_detection", "prior_rate", "tie_area_margin",
-           "topology_sigma"]
+           "labelled_runs", "penalty_radius", "place_separation", "places_per_detection", "prior_rate",
+           "tie_area_margin", "topology_sigma"]
 
 CONFIG = "config"
 
@@ -128,7 +128,7 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
     The empirical-Bayes fit depends on the held-out runs only; with ``prior_mean = "run"`` each scored run
     then shifts its prior mean. For scoring many runs against one calibration set.
     """
-    held_out = _labelled(held_out, "appearance hyperparameters")
+    held_out = labelled_runs(held_out, "appearance hyperparameters")
     if prior_mean == "run":
         centred = [replace(run, signatures=run.signatures - run.signatures.mean(axis=0)) for run in held_out]
         fitted, source = appearance_fitter(centred, model, evidence, outliers=outliers,
@@ -169,7 +169,7 @@ APPEARANCE_HYPERPARAMETERS = {"independent": ("mu", "kappa", "alpha", "beta"), "
 
 def places_per_detection(held_out: Sequence[ptm.Dataset]) -> float:
     """Distinct true places / detections, pooled over labelled runs (a false detection is its own place)."""
-    held_out = _labelled(held_out, "the prior rate")
+    held_out = labelled_runs(held_out, "the prior rate")
     places = sum(len(np.unique(dataset.labels)) for dataset in held_out)
     return places / sum(dataset.n for dataset in held_out)
 
@@ -180,7 +180,7 @@ def place_separation(held_out: Sequence[ptm.Dataset]) -> float:
     False detections (negative labels) are left out. Raises ``ValueError`` if
     no run has detections of two different places.
     """
-    held_out = _labelled(held_out, "the penalty radius")
+    held_out = labelled_runs(held_out, "the penalty radius")
     closest = math.inf
     for index, dataset in enumerate(held_out):
         if dataset.true_poses is None:
@@ -260,7 +260,8 @@ def _materialised(held_out) -> list[ptm.Dataset]:
     return list(held_out() if callable(held_out) else held_out)
 
 
-def _labelled(held_out, what: str) -> list[ptm.Dataset]:
+def labelled_runs(held_out, what: str) -> list[ptm.Dataset]:
+    """``held_out`` as a list, refused unless it holds at least one run and every run has labels."""
     held_out = list(held_out)
     if not held_out:
         raise ValueError(f"calibration of {what} needs at least one held-out run (sweep.calibration_seeds)")

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ptm_bench.evaluation.calibration import labelled_runs
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 
 __all__ = ["Calibration", "calibrate", "run_calibrated"]
@@ -45,12 +46,8 @@ class Calibration:
 
 def calibrate(peer, held_out: Sequence, noise) -> Calibration:
     """The setting of ``peer`` (an entry of ``PEERS``) with the best mean ARI on the labelled ``held_out`` runs."""
-    held_out = list(held_out)
-    if not held_out:
-        raise ValueError(f"calibration of peer {peer.name!r} needs at least one held-out run")
+    held_out = labelled_runs(held_out, f"peer {peer.name!r}")
     for index, dataset in enumerate(held_out):
-        if dataset.labels is None:
-            raise ValueError(f"calibration of peer {peer.name!r}: held-out run {index} has no labels")
         if dataset.odometry is None:
             raise ValueError(f"calibration of peer {peer.name!r}: held-out run {index} has no odometry")
     with_signatures = {dataset.signatures is not None for dataset in held_out}
