@@ -13,6 +13,13 @@ def test_import_a_shipped_log(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "N = 53 detections of 41 places, 12 revisits, path 298 m" in printed
     assert "calibration drive: the first 25 m (40 scans, not scored)" in printed
+    # the fitted noise and its source; what the drive measured, and that it is left in (Before: a JSON dump, and
+    # the drive's scale and drift always "taken out of the odometry"; no normalised error.)
+    assert ("odometry noise fitted on acapulco, fhw, intel over 4.5 m windows: alpha1 0.0147 rad/rad, alpha2 0.0087 "
+            "rad/m, alpha3 0.0198 m/m, alpha4 0.0214 m/rad, floors 0.0777 m and 0.0169 rad; a 25 m drive misses the "
+            "rest of its run by scale 0.0066, heading drift 0.0057 rad/m") in printed
+    assert "heading drift +0.0020 rad/m (left in, within 3 sigma of 0); the rows' covariances x 1.00" in printed
+    assert "mean normalised error 0.79" in printed
     dataset = ptm.Dataset.load(out)
     assert dataset.n == 53 and dataset.meta["world"] == "aces" and dataset.odometry_cov is not None
 

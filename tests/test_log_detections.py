@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import ptm
 from ptm.se2 import dead_reckoning, relative_pose
 
-from ptm_bench.logs.carmen import CarmenLog
-from ptm_bench.logs.detections import choose_places, import_carmen, log_dataset
+from ptm_bench.logs.carmen import SHIPPED_LOGS, CarmenLog
+from ptm_bench.logs.detections import IMPORTER_VERSION, choose_places, import_carmen, log_dataset
 from ptm_bench.logs.noise_fit import NoiseFit
+from ptm_bench.logs.row_error import row_normalised_error
 from ptm_bench.simulation.odometry_noise import OdometryNoise
+
+REAL_LOGS = Path(__file__).resolve().parent.parent / "data" / "real_logs"
 
 NOISE = NoiseFit(model=OdometryNoise(), floor_xy=0.01, floor_theta=0.005, per_log={"other": {}})
 
@@ -99,3 +104,39 @@ def test_shipped_log_defaults():
     assert noise["fitted_on"] == ["acapulco", "fhw", "intel"] and noise["calibration_drive"] == 25.0
     assert noise["drift_sigma"] < 0.01 < max(abs(entry["heading_drift"]) for entry in noise["per_log"].values())
     assert np.all(np.linalg.eigvalsh(dataset.odometry_cov) > 0)
+
+
+def test_the_row_normalised_error_is_one_where_the_covariances_are_right():
+    """mean r^T Sigma^-1 r / 3 of the rows against the true poses: 4 with covariances 4 times too tight."""
+    true_poses = dead_reckoning(np.array([[1.0, 0.0, 0.1], [1.0, 0.0, -0.2]]))
+    rows = relative_pose(true_poses[:-1], true_poses[1:]) - [[0.2, 0.0, 0.1], [0.0, -0.2, 0.1]]
+    right = np.array([np.diag([0.04, 0.04, 0.01])] * 2)  # each row's error is one sd in two of its components
+    dataset = ptm.Dataset(odometry=rows, odometry_cov=right, true_poses=true_poses)
+    assert row_normalised_error(dataset) == pytest.approx(2.0 / 3.0)
+    assert row_normalised_error(dataset.replace(odometry_cov=right / 4.0)) == pytest.approx(8.0 / 3.0)
+    with pytest.raises(ValueError, match="needs a dataset with odometry, odometry_cov and true_poses"):
+        row_normalised_error(ptm.Dataset(odometry=rows, odometry_cov=right))
+
+
+@pytest.mark.parametrize("name", SHIPPED_LOGS)
+def test_the_committed_real_log_datasets_are_the_importers_and_their_rows_fit_their_covariances(name):
+    """Each committed dataset (noise fitted on the three other logs) comes from this importer, and its rows'
+    normalised error lies within [0.5, 2] (importer 2: Intel's 4.17, its robot noisier than the others)."""
+    dataset = ptm.Dataset.load(REAL_LOGS / f"{name}.npz")
+    assert dataset.meta["importer_version"] == IMPORTER_VERSION
+    assert name not in dataset.meta["odometry_noise"]["fitted_on"]
+    assert 0.5 <= row_normalised_error(dataset) <= 2.0
+
+
+def test_a_degenerate_noise_fit_is_an_error_naming_the_log(tmp_path):
+    """A calibration log whose raw odometry repeats its reference fits no noise: the import names both logs."""
+    poses = dead_reckoning(np.tile([[1.0, 0.0, 0.3], [1.0, 0.0, -0.2]], (30, 1)))
+    lines = []
+    for k, (x, y, theta) in enumerate(poses):
+        pose = f"{x:.6f} {y:.6f} {theta:.6f}"
+        lines += [f"ODOM {pose} 0 0 0 {k}.0 host {k}.0", f"TRUEPOS {pose} {pose} {k}.0 host {k}.0",
+                  f"FLASER 2 1.0 2.0 {pose} {pose} {k}.5 host {k}.5"]
+    exact = tmp_path / "exact.log"
+    exact.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match="aces: the odometry noise fitted on exact is degenerate: no noise in heading"):
+        import_carmen("aces", calibration=[exact], calibration_drive=0.0)

@@ -17,17 +17,20 @@ A log (:mod:`ptm_bench.logs.carmen`) becomes a ``ptm.Dataset`` (docs/model.md
 * **Ground truth**: each detection's label is its place id; its true pose is
   the reference pose of its scan.
 * **Calibration drive**: the robot's systematic odometry errors (translation
-  scale, heading drift) are measured on the log's first ``calibration_drive``
-  metres, reference against raw odometry, as a roboticist calibrates a
-  robot before mapping; nothing is detected there, so no label and no pose of
-  a scored detection comes from it (:mod:`ptm_bench.logs.noise_fit`).
+  scale, heading drift) and its noise level are measured on the log's first
+  ``calibration_drive`` metres, reference against raw odometry, as a
+  roboticist calibrates a robot before mapping; nothing is detected there,
+  so no label and no pose of a scored detection comes from it
+  (:func:`ptm_bench.logs.noise_fit.calibrate_on_drive`).
 * **Odometry**: row k is the *raw* odometry from detection k-1 to detection k,
   composed from the raw increments of the scans between them with the
-  drive's systematic errors taken out; its covariance is propagated through
-  the scans with a noise model fitted on *other* logs
+  drive's systematic errors taken out where the drive measured them
+  distinguishably from zero; its covariance is propagated through the scans
+  with a noise model fitted on *other* logs
   (:func:`ptm_bench.logs.noise_fit.fit_noise`: the simulator's linearised
   propagation through the scans, plus the fitted floor once), whose
-  systematic part is what a drive of that length leaves on those logs.
+  systematic part is the error the drive leaves, times the drive's noise
+  level where the robot is noisier than those logs.
 * **Appearance** (optional, beyond the paper): the laser scan at the
   detection, clipped to ``LASER_CLIP`` metres (farther returns and
   "no return" readings say little in corridors) and scaled to [0, 1], reduced
@@ -54,8 +57,7 @@ import ptm
 from ptm.features import fourier_signature
 
 from ptm_bench.logs.carmen import SHIPPED_LOGS, CarmenLog, read_carmen, resolve_log, shipped_log
-from ptm_bench.logs.noise_fit import (NoiseFit, corrected_increments, fit_noise, log_name, split_calibration_drive,
-                                      systematic_errors)
+from ptm_bench.logs.noise_fit import NoiseFit, calibrate_on_drive, fit_noise, log_name, split_calibration_drive
 from ptm_bench.simulation.aliasing import signature_auc
 from ptm_bench.simulation.detector import detect
 
@@ -69,7 +71,7 @@ DEFAULT_DETECTION_RADIUS = 1.5  # [m]
 #: 0.002-0.004 rad/m, against a spread of 0.037 rad/m between the shipped robots.
 DEFAULT_CALIBRATION_DRIVE = 25.0
 LASER_CLIP = 10.0  # [m] laser ranges beyond this are clipped before the signature
-IMPORTER_VERSION = "ptm_bench.logs.detections/2"
+IMPORTER_VERSION = "ptm_bench.logs.detections/3"
 
 
 def choose_places(reference, place_spacing: float) -> dict[int, tuple[float, float]]:
@@ -121,21 +123,18 @@ def log_dataset(log: CarmenLog, noise: NoiseFit, place_spacing: float = DEFAULT_
     name = log_name(log)
     if name in noise.per_log:
         raise ValueError(f"the odometry noise model was fitted on {name} itself; fit it on other logs")
-    scored, first_scan, drive = log, 0, None
-    increments = log.raw_increments
+    scored, first_scan, drive, rows_noise = log, 0, None, noise
     if noise.calibration_drive:
         calibration, scored = split_calibration_drive(log, noise.calibration_drive)
-        scale, drift = systematic_errors(calibration)
+        rows_noise = calibrate_on_drive(noise, calibration)
         first_scan = calibration.n_scans - 1
-        increments = corrected_increments(scored.raw_increments, scale, drift)
-        drive = {"metres": noise.calibration_drive, "scans": calibration.n_scans,
-                 "scale_error": round(scale, 6), "heading_drift": round(drift, 6)}
+        drive = {"metres": noise.calibration_drive, "scans": calibration.n_scans, **rows_noise.as_meta()}
     places = _places(scored, place_spacing)
     # The detector draws only for misses and false detections, which are off: the generator is never used.
     detections = detect(scored.reference, places, detection_radius, rng=np.random.default_rng(0))
     scans = np.array([detection.step for detection in detections])
     labels = np.array([detection.place_id for detection in detections])
-    rows, covariances = noise.row_covariances(increments, scans)
+    rows, covariances = rows_noise.row_covariances(scored.raw_increments, scans)
     signatures = None
     if signature_k:
         signatures = np.array([laser_signature(scored.ranges[scan], signature_k) for scan in scans])
@@ -185,5 +184,8 @@ def import_carmen(log, place_spacing: float = DEFAULT_PLACE_SPACING,
         raise ValueError(f"the calibration logs include {name} itself; the noise model must come from other logs")
     if carmen_log.reference is not None:
         _places(carmen_log, place_spacing)  # a spacing that leaves fewer than two places is named before the fit
-    noise = fit_noise(calibration_logs, calibration_drive, window=place_spacing)  # rows span about the spacing
+    try:
+        noise = fit_noise(calibration_logs, calibration_drive, window=place_spacing)  # rows span about the spacing
+    except ValueError as error:
+        raise ValueError(f"{name}: {error}") from None
     return log_dataset(carmen_log, noise, place_spacing, detection_radius, signature_k)

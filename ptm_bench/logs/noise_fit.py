@@ -49,18 +49,39 @@ to -0.058 rad/m in each quarter of its log) and different between robots
 are what a roboticist measures before mapping (UMBmark); here they come
 from a *calibration drive*, the first ``calibration_drive`` metres of the
 scored log itself, whose reference the importer reads and whose scans it
-scores no detection on (:func:`ptm_bench.logs.detections.log_dataset`).
-What is left of them is how far a drive of that length misses the rest of
-the run: ``scale_sigma`` and ``drift_sigma`` are the root mean squares,
-over the *other* logs, of the difference between the s and d of their rest
-and of their first ``calibration_drive`` metres (:func:`fit_noise`).
-Without a drive (``calibration_drive = 0``) they are the spread of the
+scores no detection on (:func:`calibrate_on_drive`). How far a drive of that
+length misses the rest of its run is ``scale_sigma`` and ``drift_sigma``: the
+root mean square, over every consecutive stretch of that length of the
+*other* logs, of the difference between the stretch's s and d and those of
+the rest of its log (:func:`fit_noise`; 25 m: 0.007 and 0.005-0.007 rad/m).
+A drive's s or d is taken out of the odometry only when it lies more than
+``SIGNIFICANT`` = 3 of those sigmas from zero; the rows' covariances then
+carry what is left, sqrt((measured - taken out)^2 + sigma^2). Taking out
+whatever a drive measured made dead reckoning worse than none: Acapulco's
+drive measures -0.0028 rad/m where the rest of its run drifts -0.0002, and
+corrected by it the dead-reckoned rest is 40.8 m RMS off the reference
+against 2.0 m uncorrected (30 of its 31 stretches of 25 m, each taken as
+the drive, do the same). With the rule, no shipped log's drive makes it
+worse, and 4 of the 77 stretches do, by at most 15 %.
+Without a drive (``calibration_drive = 0``) the sigmas are the spread of the
 logs' own s and d, the spread between robots, and the per-row covariance,
 which cannot carry the correlation of one d over all rows, charges every
 row that spread: 0.037 rad/m over the three logs other than ACES, Intel's
 drift among them, a heading sd of 0.19 rad on a 5 m row of a robot that
 drifts 0.006 rad/m. A dataset's odometry covariances come from a fit on
 *other* logs (:func:`fit_noise` of those logs), never on the log itself.
+
+**A robot's noise level.** Alphas and floors fitted on other robots fit a
+robot as noisy as those: fitted on the three others, Intel's rows were 3.8
+times too tight (the mean normalised error of :mod:`ptm_bench.logs.row_error`,
+1 where right), the other logs' 0.56-1.05. The drive's own rows (consecutive
+``window`` metres) show it: Intel's are 4.5 times too tight. Where a drive's
+mean normalised error is above 1 it multiplies the rows' covariances
+(Intel's rows then 0.85); below 1 it is not used: five rows cannot tell a
+quiet robot from a quiet stretch (one log's 25 m stretches range over a
+factor of 5 to 10), and rows too narrow make the posterior confidently
+wrong where rows too wide cost it power. A fit with no noise in a component
+(heading, or the direction of travel) is refused, naming its logs.
 
     >>> from ptm_bench.logs.carmen import read_carmen, shipped_log
     >>> fit = fit_noise([read_carmen(shipped_log(name)) for name in ("aces", "fhw", "acapulco")], 25.0)
@@ -70,22 +91,28 @@ drifts 0.006 rad/m. A dataset's odometry covariances come from a fit on
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
 
-from ptm.se2 import compose, wrap_angle
+from ptm.se2 import compose, relative_pose, wrap_angle
 
 from ptm_bench.logs.carmen import CarmenLog
+from ptm_bench.logs.row_error import normalised_errors
 from ptm_bench.simulation.odometry_noise import OdometryNoise, OdometrySteps, decompose, detection_odometry
 
-__all__ = ["ON_THE_SPOT", "NoiseFit", "corrected_increments", "fit_noise", "log_name", "motion_components",
-           "split_calibration_drive", "systematic_errors"]
+__all__ = ["ON_THE_SPOT", "SIGNIFICANT", "DriveCalibration", "NoiseFit", "calibrate_on_drive", "corrected_increments",
+           "fit_noise", "log_name", "motion_components", "split_calibration_drive", "systematic_errors",
+           "systematic_sigmas"]
 
 #: [m] A scan that moves the robot less than this is a turn on the spot: its direction of travel is noise.
 ON_THE_SPOT = 0.01
+#: A noise parameter at most this (m or rad, per m or rad) is none: the fit's lower bound is e^-16 = 1e-7.
+NO_NOISE = 1e-6
+#: A calibration drive's s or d is taken out of the odometry when it is this many sigmas from zero.
+SIGNIFICANT = 3.0
 _JITTER = 1e-10  # on the variances of the fit's likelihood: keeps the covariance regular at any parameters
 
 
@@ -99,6 +126,22 @@ class NoiseFit:
     per_log: dict = field(default_factory=dict)  # log name -> {"scans", "scale_error", "heading_drift", ...}
     calibration_drive: float = 0.0  # [m] of each scored log that calibrate its robot's s and d (0: none)
     window: float = 0.0  # [m] of the reference over which the raw odometry was compared (0: each scan)
+
+    def __post_init__(self):
+        """``ValueError`` naming the logs it was fitted on where the model has a component without noise: a
+        row's covariance would be singular, and the pose graph would hold the odometry exact there."""
+        fitted_on = ", ".join(sorted(self.per_log)) or "no log"
+        floors = {"floor_xy": self.floor_xy, "floor_theta": self.floor_theta}
+        for name, value in floors.items():
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"the odometry noise fitted on {fitted_on} is degenerate: {name} = {value!r}")
+        model = self.model
+        for component, (*alphas, floor) in {"heading": ("alpha1", "alpha2", "floor_theta"),
+                                             "the direction of travel": ("alpha3", "alpha4", "floor_xy")}.items():
+            if max(getattr(model, alpha) for alpha in alphas) <= NO_NOISE and floors[floor] <= NO_NOISE:
+                raise ValueError(f"the odometry noise fitted on {fitted_on} is degenerate: no noise in {component} "
+                                 f"({', '.join(alphas)} and {floor} all at most {NO_NOISE:g}); does the raw odometry "
+                                 "repeat the reference?")
 
     def steps(self, increments) -> OdometrySteps:
         """The raw increments with the standard deviations of their (rot1, trans, rot2), without the floor."""
@@ -149,11 +192,61 @@ def motion_components(increments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def corrected_increments(increments, scale: float, drift: float) -> np.ndarray:
-    """The increments (T, 3) with a robot's systematic errors taken out: trans / (1 + s), rot2 - d trans."""
-    rot1, trans, rot2 = motion_components(increments)
-    trans = trans / (1.0 + scale)
-    rot2 = rot2 - drift * trans
-    return np.stack([trans * np.cos(rot1), trans * np.sin(rot1), wrap_angle(rot1 + rot2)], axis=-1)
+    """The increments (T, 3) with a robot's systematic errors taken out: their translation divided by 1 + s,
+    their turn less d times the corrected distance (signed: a reverse drifts back). At s = d = 0, unchanged."""
+    increments = np.asarray(increments, dtype=float).reshape(-1, 3)
+    _, trans, _ = motion_components(increments)
+    return np.column_stack([increments[:, :2] / (1.0 + scale),
+                            wrap_angle(increments[:, 2] - drift * trans / (1.0 + scale))])
+
+
+@dataclass(frozen=True)
+class DriveCalibration:
+    """What a log's calibration drive measured of its robot, and what the importer takes from it."""
+
+    scale_error: float  # s measured on the drive
+    heading_drift: float  # d [rad/m] measured on the drive
+    scale_applied: float  # taken out of the odometry: s where significant, else 0
+    drift_applied: float  # taken out of the odometry: d where significant, else 0
+    noise_level: float  # >= 1: the drive's rows' mean normalised error under the fit; multiplies the rows' covariances
+    noise: NoiseFit  # the rows' noise model: the fit, its systematic sigmas what the drive leaves
+
+    def row_covariances(self, increments, scans) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`NoiseFit.row_covariances` of the increments with (s, d) taken out, at the drive's noise level."""
+        increments = corrected_increments(increments, self.scale_applied, self.drift_applied)
+        rows, covariances = self.noise.row_covariances(increments, scans)
+        return rows, self.noise_level * covariances
+
+    def as_meta(self) -> dict:
+        return {"scale_error": round(self.scale_error, 6), "heading_drift": round(self.heading_drift, 6),
+                "scale_applied": round(self.scale_applied, 6), "drift_applied": round(self.drift_applied, 6),
+                "noise_level": round(self.noise_level, 4), "rows_scale_sigma": round(self.noise.model.scale_sigma, 6),
+                "rows_drift_sigma": round(self.noise.model.drift_sigma, 6)}
+
+
+def calibrate_on_drive(noise: NoiseFit, drive: CarmenLog) -> DriveCalibration:
+    """A robot's calibration drive against the noise fitted on other logs: its (s, d) and its noise level.
+
+    Each of s and d is taken out of the odometry when it lies more than ``SIGNIFICANT`` of the fit's sigmas
+    (how far a drive misses the rest of its run on the other logs) from zero, and left in otherwise; the rows'
+    systematic sigmas become the root mean square error left, sqrt((measured - taken out)^2 + sigma^2). The
+    drive's own rows (consecutive ``noise.window`` metres) then give the noise level, the mean of their
+    normalised errors (:func:`ptm_bench.logs.row_error.normalised_errors`), where it is above 1: a robot
+    noisier than those the noise was fitted on widens its rows; a quieter drive does not narrow them.
+    """
+    scale, drift = systematic_errors(drive)
+    sigmas = noise.model.scale_sigma, noise.model.drift_sigma
+    applied = [value if abs(value) > SIGNIFICANT * sigma else 0.0 for value, sigma in zip((scale, drift), sigmas)]
+    left = [float(np.hypot(value - taken, sigma)) for value, taken, sigma in zip((scale, drift), applied, sigmas)]
+    rows_noise = replace(noise, model=replace(noise.model, scale_sigma=left[0], drift_sigma=left[1]))
+    _, trans, _ = motion_components(drive.reference_increments())
+    scans = [members[0] for members in _consecutive(np.abs(trans), noise.window)]
+    level = 1.0
+    if len(scans) > 1:
+        rows, covariances = rows_noise.row_covariances(corrected_increments(drive.raw_increments, *applied), scans)
+        reference = relative_pose(drive.reference[scans[:-1]], drive.reference[scans[1:]])
+        level = max(1.0, float(np.mean(normalised_errors(rows, covariances, reference))))
+    return DriveCalibration(scale, drift, applied[0], applied[1], level, rows_noise)
 
 
 def split_calibration_drive(log: CarmenLog, metres: float) -> tuple[CarmenLog, CarmenLog]:
@@ -169,15 +262,58 @@ def split_calibration_drive(log: CarmenLog, metres: float) -> tuple[CarmenLog, C
 
 def systematic_errors(log: CarmenLog) -> tuple[float, float]:
     """(s, d): the log's translation-scale error and heading drift [rad/m] against its reference."""
+    travelled, scale, drift = _systematic_sums(log).sum(axis=1)
+    if travelled <= 0.0:
+        raise ValueError(f"{log.source}: the reference never moves; no odometry noise can be fitted")
+    return float(scale / travelled), float(drift / travelled)
+
+
+def _systematic_sums(log: CarmenLog) -> np.ndarray:
+    """(3, T) per increment: trans^2, (raw trans - trans) trans and the heading error times trans, trans the
+    reference's; s and d are the least-squares slopes of their sums over a stretch (:func:`systematic_errors`)."""
     raw, reference = log.raw_increments, log.reference_increments()
     _, raw_trans, _ = motion_components(raw)
     _, trans, _ = motion_components(reference)
-    travelled = float(trans @ trans)
-    if travelled <= 0.0:
-        raise ValueError(f"{log.source}: the reference never moves; no odometry noise can be fitted")
-    scale = float((raw_trans - trans) @ trans) / travelled
-    drift = float(wrap_angle(raw[:, 2] - reference[:, 2]) @ trans) / travelled
-    return scale, drift
+    return np.stack([trans * trans, (raw_trans - trans) * trans, wrap_angle(raw[:, 2] - reference[:, 2]) * trans])
+
+
+def systematic_sigmas(logs, calibration_drive: float) -> tuple[float, float]:
+    """(scale_sigma, drift_sigma) of logs: with a ``calibration_drive`` [m], how far the s and d of a drive that
+    long miss those of the rest of its run (root mean square over every consecutive stretch of that length of
+    every log, :func:`_drive_misses`); without one (0), the spread (root mean square) of the logs' own s and d."""
+    logs = list(logs)
+    if calibration_drive:
+        misses = np.concatenate([_drive_misses(log, calibration_drive) for log in logs])
+    else:
+        misses = np.array([systematic_errors(log) for log in logs]).reshape(-1, 2)
+    if not len(misses):
+        raise ValueError(f"the logs {sorted(log_name(log) for log in logs)} are shorter than {calibration_drive:g} m, "
+                         "one calibration drive and some of the run beside it")
+    scale_sigma, drift_sigma = np.sqrt(np.mean(np.square(misses), axis=0))
+    return float(scale_sigma), float(drift_sigma)
+
+
+def _drive_misses(log: CarmenLog, metres: float) -> np.ndarray:
+    """(k, 2): how far the (s, d) of each of the log's consecutive stretches of ``metres`` (a last, shorter one
+    left out) miss those of the rest of the log, as a calibration drive of that length would."""
+    sums = _systematic_sums(log)
+    _, trans, _ = motion_components(log.reference_increments())
+    total = sums.sum(axis=1)
+    misses = []
+    for members in _consecutive(np.abs(trans), metres)[:-1]:
+        stretch = sums[:, members].sum(axis=1)
+        rest = total - stretch
+        if stretch[0] > 0.0 and rest[0] > 0.0:
+            misses.append(stretch[1:] / stretch[0] - rest[1:] / rest[0])
+    return np.array(misses).reshape(-1, 2)
+
+
+def _consecutive(distance, metres: float) -> list[np.ndarray]:
+    """The increments (their indices) in consecutive stretches of ``metres`` of travelled ``distance`` (each
+    increment its own stretch at 0), the last one possibly shorter."""
+    travelled = np.cumsum(distance) - distance  # along the path when each increment starts
+    stretch_of = np.arange(len(distance)) if metres == 0 else np.floor(travelled / metres).astype(int)
+    return np.split(np.arange(len(distance)), np.flatnonzero(np.diff(stretch_of)) + 1)
 
 
 def _window_statistics(log: CarmenLog, scale: float, drift: float, window: float):
@@ -201,9 +337,7 @@ def _window_statistics(log: CarmenLog, scale: float, drift: float, window: float
     coefficients[:, 0, :3] = np.stack([turn1 ** 2, 2.0 * turn1 * distance, distance ** 2], axis=-1)
     coefficients[:, 1, 3:] = np.stack([distance ** 2, 2.0 * distance * (turn1 + turn2), (turn1 + turn2) ** 2], axis=-1)
     coefficients[:, 2, :3] = np.stack([turn2 ** 2, 2.0 * turn2 * distance, distance ** 2], axis=-1)
-    travelled = np.cumsum(distance) - distance  # along the reference when each increment starts
-    window_of = np.arange(len(trans)) if window == 0 else np.floor(travelled / window).astype(int)
-    windows = np.split(np.arange(len(trans)), np.flatnonzero(np.diff(window_of)) + 1)
+    windows = _consecutive(distance, window)
     residuals, pieces = [], []
     for members in windows if window == 0 else windows[:-1]:
         raw_end, mean_end = np.zeros(3), np.zeros(3)
@@ -233,9 +367,8 @@ _MONOMIALS = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3))
 
 
 def fit_noise(logs, calibration_drive: float = 0.0, window: float = 0.0) -> NoiseFit:
-    """Maximum-likelihood alphas and floors over ``logs`` (each needs a reference), and the systematic sigmas:
-    with a ``calibration_drive`` [m], how far the s and d of each log's first that many metres miss those of
-    its rest (root mean square over the logs); without one (0), the spread of the logs' own s and d.
+    """Maximum-likelihood alphas and floors over ``logs`` (each needs a reference), and the systematic sigmas
+    of :func:`systematic_sigmas`.
 
     The likelihood is that of the raw odometry composed over consecutive ``window`` metres of the reference
     (0: every scan on its own), each window's error Normal with the propagated covariance plus the floor
@@ -248,21 +381,15 @@ def fit_noise(logs, calibration_drive: float = 0.0, window: float = 0.0) -> Nois
         raise ValueError(f"calibration_drive must be >= 0 metres, got {calibration_drive!r}")
     if not window >= 0:
         raise ValueError(f"window must be >= 0 metres, got {window!r}")
-    per_log, residuals, pieces, systematic = {}, [], [], []
+    scale_sigma, drift_sigma = systematic_sigmas(logs, calibration_drive)
+    per_log, residuals, pieces = {}, [], []
     for log in logs:
         scale, drift = systematic_errors(log)
         log_residuals, log_pieces = _window_statistics(log, scale, drift, window)
         residuals.append(log_residuals)
         pieces.append(log_pieces)
-        entry = per_log[log_name(log)] = {"scans": log.n_scans, "scale_error": round(scale, 6),
-                                          "heading_drift": round(drift, 6)}
-        if calibration_drive:
-            drive, rest = (systematic_errors(part) for part in split_calibration_drive(log, calibration_drive))
-            entry.update(drive_scale_error=round(drive[0], 6), drive_heading_drift=round(drive[1], 6),
-                         rest_scale_error=round(rest[0], 6), rest_heading_drift=round(rest[1], 6))
-            systematic.append(np.subtract(rest, drive))
-        else:
-            systematic.append((scale, drift))
+        per_log[log_name(log)] = {"scans": log.n_scans, "scale_error": round(scale, 6),
+                                  "heading_drift": round(drift, 6)}
     residual, piece = np.concatenate(residuals), np.concatenate(pieces)
     if not len(residual):
         raise ValueError(f"the logs {sorted(per_log)} are shorter than one window of {window:g} m")
@@ -283,8 +410,7 @@ def fit_noise(logs, calibration_drive: float = 0.0, window: float = 0.0) -> Nois
     if not np.isfinite(result.fun):
         raise ValueError(f"odometry noise fit failed on {sorted(per_log)}: {result.message}")
     a1, a2, a3, a4, f_xy, f_theta = (float(value) for value in np.exp(result.x))
-    scale_sigma, drift_sigma = np.sqrt(np.mean(np.square(systematic), axis=0))
-    model = OdometryNoise(alpha1=a1, alpha2=a2, alpha3=a3, alpha4=a4, scale_sigma=float(scale_sigma),
-                          drift_sigma=float(drift_sigma), level=1.0)
+    model = OdometryNoise(alpha1=a1, alpha2=a2, alpha3=a3, alpha4=a4, scale_sigma=scale_sigma,
+                          drift_sigma=drift_sigma, level=1.0)
     return NoiseFit(model=model, floor_xy=f_xy, floor_theta=f_theta, per_log=per_log,
                     calibration_drive=float(calibration_drive), window=float(window))
