@@ -20,6 +20,7 @@ from .appearance import AppearanceModel
 from .appearance_joint import JointAppearanceModel
 from .dataset import Dataset
 from .exact import exact_posterior
+from .gamma_poisson_prior import GammaPoissonPrior
 from .odometry import OdometryModel
 from .online import OnlineMapper
 from .partitions import Partition, bell, canonical
@@ -31,7 +32,7 @@ from .tempering import tempered_mcmc
 from .tie_normaliser import DeadReckonedTieNormaliser, TieNormaliser
 
 __all__ = [
-    "Dataset", "PTM", "Partition", "PoissonPrior", "Posterior", "AppearanceModel", "JointAppearanceModel",
+    "Dataset", "PTM", "Partition", "PoissonPrior", "GammaPoissonPrior", "Posterior", "AppearanceModel", "JointAppearanceModel",
     "OdometryModel", "TieNormaliser", "DeadReckonedTieNormaliser", "OnlineMapper", "SamplerOptions", "mcmc",
     "tempered_mcmc", "exact_posterior", "total_variation", "canonical", "bell",
     "diagnostics", "export", "features", "moves",

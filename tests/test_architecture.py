@@ -27,9 +27,10 @@ LAYERS = ("world", "simulation", "logs", "evaluation", "reporting", "benchmarks"
 #: The library's layers, bottom to top, by the first name under ``ptm`` (a module or a package); ``ptm`` itself
 #: (its ``__init__``) is the top.
 LIBRARY_LAYERS = (
-    ("foundation", {"_validation", "_cache", "_threads", "se2", "partitions", "dataset", "diagnostics", "result",
-                    "features"}),
-    ("models", {"prior", "appearance", "appearance_joint", "appearance_outliers", "tie_normaliser", "pose_graph",
+    ("foundation", {"_validation", "_npz", "_cache", "_threads", "se2", "partitions", "dataset", "diagnostics",
+                    "result", "features"}),
+    ("models", {"prior", "gamma_poisson_prior",
+                "appearance", "appearance_joint", "appearance_outliers", "tie_normaliser", "pose_graph",
                 "odometry", "export"}),
     ("posterior", {"posterior"}),
     ("sampling", {"moves", "online", "smc", "starts", "recorder", "sampler", "tempering", "exact"}),
