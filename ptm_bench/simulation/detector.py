@@ -4,8 +4,11 @@ A *visit* is a maximal run of control steps during which the robot is within
 ``radius`` of one place; the detection is the step of that run nearest to the
 place, labelled with the place id. Optionally each visit is missed with
 probability ``miss_rate``, and false detections fire with ``false_rate`` per
-metre driven away from every place (farther than twice the radius); a false
-detection is its own place and gets a fresh negative label -1, -2, ...
+metre driven away from every place (farther than twice the radius), at most
+one per pose; a false detection is its own place and gets a fresh negative
+label -1, -2, ... A rate the path cannot meet -- it never leaves the places'
+surroundings, or the rate asks for more than one detection in a step -- is a
+``ValueError``, never silently fewer false detections.
 
     >>> import numpy as np
     >>> path = np.column_stack([np.linspace(0.0, 10.0, 101), np.zeros(101)])   # drive 10 m along x
@@ -57,8 +60,21 @@ def detect(poses, places: dict[int, tuple[float, float]], radius: float, rng: np
     if false_rate > 0.0:
         travelled = np.concatenate([[0.0], np.linalg.norm(np.diff(positions, axis=0), axis=1)])
         far = distances.min(axis=1) > 2 * radius
+        _check_false_rate(false_rate, travelled[far], radius)
         fires = far & (rng.random(len(positions)) < false_rate * travelled)
         false_steps = np.flatnonzero(fires)
         kept.extend(Detection(int(step), -(index + 1), 0.0) for index, step in enumerate(false_steps))
         kept.sort(key=lambda detection: detection.step)
     return kept
+
+
+def _check_false_rate(false_rate: float, far_steps: np.ndarray, radius: float) -> None:
+    """Refuse a false-detection rate the path cannot meet, given the lengths of its steps away from the places."""
+    if not far_steps.sum() > 0:
+        raise ValueError(f"false_rate: {false_rate:g} per metre cannot be met: the path never runs farther than "
+                         f"twice the detection radius ({2 * radius:g} m) from a place, where false detections fire")
+    longest = float(far_steps.max())
+    if false_rate * longest > 1.0:
+        raise ValueError(f"false_rate: {false_rate:g} per metre cannot be met: at most one false detection fires per "
+                         f"step, and the path covers up to {longest:.3g} m in one, so the rate is at most "
+                         f"{1 / longest:.3g} per metre")

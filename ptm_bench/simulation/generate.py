@@ -14,6 +14,10 @@ streams -- world appearance (palettes), odometry noise, appearance variation
 level changes neither the route nor the palettes. The controller steers on
 the true pose, so the route does not depend on the odometry noise either.
 
+A run whose work -- the route's length over the distance one control period
+covers (``ptm_bench.simulation.robot.control_steps``) -- exceeds
+``MAX_CONTROL_STEPS`` is refused before anything is built or simulated.
+
     >>> dataset = generate_dataset("short_loop", aliasing=0.0, noise=1.0, seed=0, images=False)
     >>> dataset.n, dataset.meta["n_palettes"], dataset.signatures.shape
     (9, 4, (9, 5))
@@ -38,7 +42,8 @@ from ptm_bench.simulation.detector import detect
 from ptm_bench.world.floorplan import Floorplan, assign_palettes, load_world, palette_count, palette_library
 from ptm_bench.simulation.odometry_noise import OdometryNoise, detection_odometry, sample_odometry
 from ptm_bench.simulation.panorama import CylindricalStitcher, add_pixel_noise
-from ptm_bench.simulation.robot import ControllerConfig, Rig, RigConfig, drive, place_base
+from ptm_bench.simulation.robot import (MAX_CONTROL_STEPS, ControllerConfig, Rig, RigConfig, control_steps, drive,
+                                        place_base)
 from ptm_bench.simulation.scene import build_mjcf, compile_scene, place_sites
 
 import mujoco  # noqa: E402  (robot has set MUJOCO_GL)
@@ -96,6 +101,12 @@ def generate_dataset(
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not 0.0 <= lighting_variation < 1.0:
         raise ValueError(f"lighting_variation must be in [0, 1), got {lighting_variation!r}")
+    steps = control_steps(floor.route_length(route), floor.speed, controller)
+    if steps > MAX_CONTROL_STEPS:
+        raise ValueError(f"world: driving {floor.name} ({floor.source}), route {route!r} of "
+                         f"{floor.route_length(route):.4g} m at {floor.speed:g} m/s, takes about {steps:.3g} control "
+                         f"steps of {controller.control_period:g} s, more than MAX_CONTROL_STEPS = {MAX_CONTROL_STEPS} "
+                         "(ptm_bench.simulation.robot): raise the world's speed or shorten its route")
     started = time.perf_counter()
     world_stream, odometry_stream, appearance_stream, detector_stream = (
         np.random.default_rng(child) for child in np.random.SeedSequence(int(seed)).spawn(4)
@@ -114,7 +125,10 @@ def generate_dataset(
 
         trajectory = drive(model, data, waypoints, floor.speed, controller, progress=report)
 
-    detections = detect(trajectory.poses, places, floor.detection_radius, detector_stream, miss_rate, false_rate)
+    try:
+        detections = detect(trajectory.poses, places, floor.detection_radius, detector_stream, miss_rate, false_rate)
+    except ValueError as error:
+        raise ValueError(f"world {floor.name} ({floor.source}): {error}") from None
     if not detections:
         raise ValueError(f"world: the route of {floor.name} passes no place; no detections")
     steps = np.array([detection.step for detection in detections])

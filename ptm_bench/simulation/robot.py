@@ -31,9 +31,13 @@ import numpy as np  # noqa: E402
 
 from ptm_bench.world.floorplan import resample_polyline  # noqa: E402
 
-__all__ = ["CAMERA_COUNT", "ControllerConfig", "Rig", "RigConfig", "Trajectory", "base_mjcf", "base_pose", "drive", "place_base"]
+__all__ = ["CAMERA_COUNT", "ControllerConfig", "MAX_CONTROL_STEPS", "Rig", "RigConfig", "Trajectory", "base_mjcf",
+           "base_pose", "control_steps", "drive", "place_base"]
 
 CAMERA_COUNT = 8
+#: The most control steps a drive may be expected to take (:func:`control_steps`) before one is simulated: about
+#: a minute of physics at some 100 us a step (and 14 hours of the robot's time at the default 0.1 s period).
+MAX_CONTROL_STEPS = 500_000
 JOINTS = ("base_x", "base_y", "base_yaw")
 
 
@@ -182,6 +186,11 @@ class PurePursuit:
         return forward, yaw_rate
 
 
+def control_steps(length: float, speed: float, config: ControllerConfig = ControllerConfig()) -> float:
+    """About how many control periods driving ``length`` metres at ``speed`` m/s takes: the work of a drive."""
+    return length / (speed * config.control_period)
+
+
 def drive(model, data, waypoints, speed: float, config: ControllerConfig = ControllerConfig(),
           progress=None) -> Trajectory:
     """Drive the base along ``waypoints`` with ``mj_step`` until the end; the true state per control period.
@@ -190,7 +199,7 @@ def drive(model, data, waypoints, speed: float, config: ControllerConfig = Contr
     """
     controller = PurePursuit(waypoints, config)
     model.opt.timestep = config.timestep
-    expected_steps = len(controller.points) * PurePursuit.RESOLUTION / (speed * config.control_period)
+    expected_steps = control_steps(len(controller.points) * PurePursuit.RESOLUTION, speed, config)
     max_steps = int(4 * expected_steps + 200)
     addresses = [model.joint(joint).qposadr[0] for joint in JOINTS]
     velocity_addresses = [model.joint(joint).dofadr[0] for joint in JOINTS]

@@ -4,7 +4,9 @@ A floor (docs/model.md §5) is a graph of junction nodes joined by straight corr
 (width, wall height), a set of *places* (ids and positions where the landmark
 detector fires), appearance *palettes*, and *routes* (node sequences the robot
 drives). This module parses and validates the TOML files in ``worlds/``
-(errors name the field and the line), generates corridor grids for sweeps, and
+(errors name the file, the key and its line; an unknown key is refused at every
+level, and what a floor may ask for is bounded: :data:`MAX_EXTENT`,
+:data:`MAX_SPEED`), generates corridor grids for sweeps, and
 implements the aliasing map of docs/model.md §5: P places receive
 ``C = max(1, round(1 + (1 - a)(P - 1)))`` distinct palettes.
 
@@ -19,7 +21,9 @@ from __future__ import annotations
 
 import importlib.resources
 import math
+import numbers
 import re
+import reprlib
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,11 +32,16 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
+from ptm._validation import count as whole_number, positive
 from ptm.features import fourier_signature, grayscale
 
 __all__ = [
     "Corridor",
+    "FLOOR_KEYS",
     "Floorplan",
+    "MAX_EXTENT",
+    "MAX_GRID_NODES",
+    "MAX_SPEED",
     "Palette",
     "WORLDS_DIR",
     "resample_polyline",
@@ -49,7 +58,19 @@ __all__ = [
 #: The preset floors: the repository's ``worlds/`` folder, installed as the package ``ptm_bench.world.presets``.
 WORLDS_DIR = Path(str(importlib.resources.files("ptm_bench.world.presets")))
 SECTOR_COUNT = 4  # a place's decor: four panels at its diagonals, one palette colour each
-ROBOT_CLEARANCE = 0.3  # [m] a place must leave this much room to the walls
+ROBOT_CLEARANCE = 0.3  # [m] a place must leave this much room to the walls; a corridor, this much on each side
+#: [m] The most any length of a floor may be: every node lies within MAX_EXTENT of the origin along x and y, the
+#: floor spans at most MAX_EXTENT along each (nodes and corridor widths: ``Floorplan.bounds``), and a width, a
+#: wall height or the detection radius is at most MAX_EXTENT. The scene compiler rasterises the floor at 0.25 m:
+#: at most 2000 x 2000 cells (tens of MB a corridor), where a 2e7 m floor asked for petabytes.
+MAX_EXTENT = 500.0
+#: [m/s] The fastest a floor may drive its route: the controller (``ptm_bench.simulation.robot``, 0.6 m look-ahead
+#: every 0.1 s) keeps the base within 0.15 m of the route's corners up to 3 m/s, misses them by 0.4 m at 5 m/s and
+#: loses the route at 15 m/s.
+MAX_SPEED = 3.0
+#: The most nodes a procedural grid (:func:`corridor_grid`) may have: its route takes one breadth-first search
+#: per node, quadratic in their number (64 x 64, the scale benchmark's largest grid at --scale 16: about 3 s).
+MAX_GRID_NODES = 4096
 # What a camera sees (compiled by ptm_bench.simulation.scene): walls, floor and ceiling are one matte grey,
 # evenly lit, fading into a haze of the same grey, so the corridor layout is invisible; a place's
 # decor -- four panels at its diagonals, DECOR_RADIUS_PER_WIDTH x the narrowest corridor width
@@ -221,15 +242,25 @@ def load_world(name_or_path) -> Floorplan:
     if path.suffix == ".toml" or path.is_file():
         if not path.is_file():
             raise ValueError(f"world: no floor file at {path}")
-        return parse_floorplan(path.read_text(), source=str(path))
+        return parse_floorplan(_read_text(path), source=str(path))
     known = list_worlds()
     if text not in known:
         raise ValueError(f"world: unknown world {text!r}; known worlds: {', '.join(known)}")
-    return parse_floorplan((WORLDS_DIR / f"{text}.toml").read_text(), source=str(WORLDS_DIR / f"{text}.toml"))
+    return parse_floorplan(_read_text(WORLDS_DIR / f"{text}.toml"), source=str(WORLDS_DIR / f"{text}.toml"))
+
+
+def _read_text(path: Path) -> str:
+    """A floor file's text (UTF-8, a byte-order mark allowed); a ``ValueError`` naming the file if it is not text."""
+    try:
+        return path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
 
 
 def parse_floorplan(text: str, source: str = "<string>") -> Floorplan:
     """Parse and validate a floor described in TOML; errors say ``source:line: field: problem``."""
+    if not isinstance(text, str):
+        raise TypeError(f"text: a floor is TOML text (str), got {type(text).__name__} from {source}")
     try:
         document = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
@@ -243,6 +274,7 @@ class _KeyLines:
 
     _HEADER = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.\-]+)\s*\]\]?")
     _KEY = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
+    _ENTRY = re.compile(r"(.+)\[\d+\]")
 
     def __init__(self, text: str):
         self.lines: dict[str, int] = {}
@@ -270,8 +302,21 @@ class _KeyLines:
         while path:
             if path in self.lines:
                 return self.lines[path]
-            path = path.rpartition(".")[0] if "." in path else ""
+            entry = self._ENTRY.fullmatch(path)  # an entry of an inline array: the array's line
+            path = entry.group(1) if entry else path.rpartition(".")[0]
         return None
+
+
+#: The keys of each table of a floor file (``[nodes]`` and ``[routes]`` name their own keys); any other is refused.
+FLOOR_KEYS = {
+    "": ("name", "description", "defaults", "nodes", "corridors", "places", "palettes", "routes"),
+    "defaults": ("corridor_width", "wall_height", "detection_radius", "speed", "lateral_jitter"),
+    "corridors": ("from", "to", "width", "wall_height"),
+    "places": ("id", "node", "at"),
+    "palettes": ("sectors", "marker"),
+}
+_LENGTH = (MAX_EXTENT, "MAX_EXTENT", "m")  # the bound of a length, its name and its unit
+_SPEED = (MAX_SPEED, "MAX_SPEED", "m/s")
 
 
 class _Reader:
@@ -287,17 +332,48 @@ class _Reader:
         where = f"{self.source}:{line}" if line else self.source
         raise ValueError(f"{where}: {path}: {problem}")
 
-    def number(self, table: dict, key: str, path: str, default=None, positive=True) -> float:
+    def table(self, value, path: str, section: str | None = None) -> dict:
+        """``value`` as a table; with a ``section`` of :data:`FLOOR_KEYS`, refusing the keys that section has not."""
+        if not isinstance(value, dict):
+            kind = f"a [[{section}]] table" if path.endswith("]") else f"a [{path}] table" if path else "a table"
+            self.fail(path, f"must be {kind}, got {reprlib.repr(value)}")
+        known = FLOOR_KEYS.get(section)
+        for key in value:
+            if known is not None and key not in known:
+                self.fail(f"{path}.{key}" if path else key, f"unknown key (expected one of {', '.join(known)})")
+        return value
+
+    def rows(self, key: str, required: bool) -> list[tuple[str, dict]]:
+        """The tables of the array of tables ``[[key]]``, each with its path, their keys checked."""
+        rows = self.document.get(key, None if required else [])
+        if not isinstance(rows, list) or (required and not rows):
+            self.fail(key, f"must be {'a non-empty' if required else 'an'} array of [[{key}]] tables, "
+                           f"got {reprlib.repr(rows)}")
+        return [(f"{key}[{index}]", self.table(row, f"{key}[{index}]", key)) for index, row in enumerate(rows)]
+
+    def number(self, table: dict, key: str, path: str, default: float, least: tuple | None = None,
+               most: tuple = _LENGTH) -> float:
+        """A finite number, > 0 (``least`` None) or >= ``least = (bound, what it is)``, at most the bound ``most``
+        names."""
         if key not in table:
-            if default is None:
-                self.fail(path, "missing")
             return float(default)
         value = table[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            self.fail(path, f"must be a number, got {value!r}")
-        if positive and value <= 0:
+            self.fail(path, f"must be a number, got {reprlib.repr(value)}")
+        if least is None and value <= 0:
             self.fail(path, f"must be positive, got {value!r}")
+        if least is not None and value < least[0]:
+            self.fail(path, f"must be at least {least[1]}, got {value!r}")
+        bound, name, unit = most
+        if value > bound:
+            self.fail(path, f"must be at most {name} = {bound:g} {unit}, got {value!r}")
         return float(value)
+
+    def node(self, value, path: str, nodes: dict) -> str:
+        """The name of a node of ``[nodes]``."""
+        if not isinstance(value, str) or value not in nodes:
+            self.fail(path, f"unknown node {reprlib.repr(value)}; nodes are {reprlib.repr(sorted(nodes))}")
+        return value
 
     def point(self, value, path: str) -> tuple[float, float]:
         if (
@@ -305,7 +381,9 @@ class _Reader:
             or len(value) != 2
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
         ):
-            self.fail(path, f"must be a point [x, y] in metres, got {value!r}")
+            self.fail(path, f"must be a point [x, y] in metres, got {reprlib.repr(value)}")
+        if max(abs(v) for v in value) > MAX_EXTENT:
+            self.fail(path, f"{value} lies farther than MAX_EXTENT = {MAX_EXTENT:g} m from the origin")
         return float(value[0]), float(value[1])
 
     def colour(self, value, path: str) -> tuple[float, float, float]:
@@ -314,74 +392,61 @@ class _Reader:
             or len(value) != 3
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1 for v in value)
         ):
-            self.fail(path, f"must be an RGB colour [r, g, b] in [0, 1], got {value!r}")
+            self.fail(path, f"must be an RGB colour [r, g, b] in [0, 1], got {reprlib.repr(value)}")
         return float(value[0]), float(value[1]), float(value[2])
 
     def floorplan(self) -> Floorplan:
-        document = self.document
-        known = {"name", "description", "defaults", "nodes", "corridors", "places", "palettes", "routes"}
-        for key in document:
-            if key not in known:
-                self.fail(key, f"unknown field (expected one of {', '.join(sorted(known))})")
+        document = self.table(self.document, "", "")
         name = document.get("name")
         if not isinstance(name, str) or not name:
-            self.fail("name", "must be a non-empty string")
-        defaults = document.get("defaults", {})
-        if not isinstance(defaults, dict):
-            self.fail("defaults", "must be a table")
-        width = self.number(defaults, "corridor_width", "defaults.corridor_width", default=2.0)
-        height = self.number(defaults, "wall_height", "defaults.wall_height", default=2.5)
-        radius = self.number(defaults, "detection_radius", "defaults.detection_radius", default=1.0)
-        speed = self.number(defaults, "speed", "defaults.speed", default=1.0)
-        jitter = self.number(defaults, "lateral_jitter", "defaults.lateral_jitter", default=0.2, positive=False)
-        if jitter < 0:
-            self.fail("defaults.lateral_jitter", f"must be >= 0, got {jitter}")
+            self.fail("name", f"must be a non-empty string, got {reprlib.repr(name)}")
+        description = document.get("description", "")
+        if not isinstance(description, str):
+            self.fail("description", f"must be a string, got {reprlib.repr(description)}")
+        defaults = self.table(document.get("defaults", {}), "defaults", "defaults")
+        narrowest = (2 * ROBOT_CLEARANCE, f"2 x ROBOT_CLEARANCE = {2 * ROBOT_CLEARANCE:g} m (room for the robot)")
+        width = self.number(defaults, "corridor_width", "defaults.corridor_width", 2.0, least=narrowest)
+        height = self.number(defaults, "wall_height", "defaults.wall_height", 2.5)
+        radius = self.number(defaults, "detection_radius", "defaults.detection_radius", 1.0)
+        speed = self.number(defaults, "speed", "defaults.speed", 1.0, most=_SPEED)
+        jitter = self.number(defaults, "lateral_jitter", "defaults.lateral_jitter", 0.2, least=(0.0, "0 m"))
 
-        nodes_table = document.get("nodes")
-        if not isinstance(nodes_table, dict) or not nodes_table:
+        nodes_table = self.table(document.get("nodes"), "nodes")
+        if not nodes_table:
             self.fail("nodes", "must be a table of node = [x, y] entries")
-        nodes = {str(key): self.point(value, f"nodes.{key}") for key, value in nodes_table.items()}
+        nodes = {key: self.point(value, f"nodes.{key}") for key, value in nodes_table.items()}
 
-        corridor_rows = document.get("corridors")
-        if not isinstance(corridor_rows, list) or not corridor_rows:
-            self.fail("corridors", "must be a non-empty array of [[corridors]] tables")
         corridors = []
-        for index, row in enumerate(corridor_rows):
-            path = f"corridors[{index}]"
-            ends = []
-            for key in ("from", "to"):
-                node = row.get(key)
-                if node not in nodes:
-                    self.fail(f"{path}.{key}", f"unknown node {node!r}; nodes are {', '.join(sorted(nodes))}")
-                ends.append(node)
-            if ends[0] == ends[1]:
-                self.fail(f"{path}.to", "a corridor must join two different nodes")
+        for path, row in self.rows("corridors", required=True):
+            start, end = (self.node(row.get(key), f"{path}.{key}", nodes) for key in ("from", "to"))
+            if not np.linalg.norm(np.subtract(nodes[end], nodes[start])) > 0:  # Corridor.coordinates divides by it
+                self.fail(f"{path}.to", f"a corridor must join two nodes at different points, got {start!r} and "
+                                        f"{end!r} at {nodes[start]}")
             corridors.append(
                 Corridor(
-                    ends[0],
-                    ends[1],
-                    self.number(row, "width", f"{path}.width", default=width),
-                    self.number(row, "wall_height", f"{path}.wall_height", default=height),
+                    start,
+                    end,
+                    self.number(row, "width", f"{path}.width", width, least=narrowest),
+                    self.number(row, "wall_height", f"{path}.wall_height", height),
                 )
             )
+        self.check_extent(nodes, corridors)
+        room = min(corridor.width for corridor in corridors) / 2 - ROBOT_CLEARANCE
+        if jitter > room:
+            self.fail("defaults.lateral_jitter", f"{jitter:g} m would move the route into the walls: at most half "
+                                                 f"the narrowest corridor less ROBOT_CLEARANCE, {room:.3g} m")
 
-        place_rows = document.get("places")
-        if not isinstance(place_rows, list) or not place_rows:
-            self.fail("places", "must be a non-empty array of [[places]] tables")
         places: dict[int, tuple[float, float]] = {}
-        for index, row in enumerate(place_rows):
-            path = f"places[{index}]"
+        for path, row in self.rows("places", required=True):
             place_id = row.get("id")
             if isinstance(place_id, bool) or not isinstance(place_id, int) or place_id < 0:
-                self.fail(f"{path}.id", f"must be a non-negative integer, got {place_id!r}")
+                self.fail(f"{path}.id", f"must be a non-negative integer, got {reprlib.repr(place_id)}")
             if place_id in places:
                 self.fail(f"{path}.id", f"duplicate place id {place_id}")
             if ("node" in row) == ("at" in row):
                 self.fail(path, "give exactly one of node = NAME or at = [x, y]")
             if "node" in row:
-                if row["node"] not in nodes:
-                    self.fail(f"{path}.node", f"unknown node {row['node']!r}")
-                places[place_id] = nodes[row["node"]]
+                places[place_id] = nodes[self.node(row["node"], f"{path}.node", nodes)]
             else:
                 places[place_id] = self.point(row["at"], f"{path}.at")
             clearance = _clearance(places[place_id], nodes, corridors)
@@ -389,11 +454,10 @@ class _Reader:
                 self.fail(path, f"place {place_id} at {places[place_id]} is not inside a corridor")
 
         palettes = []
-        for index, row in enumerate(document.get("palettes", [])):
-            path = f"palettes[{index}]"
+        for path, row in self.rows("palettes", required=False):
             sectors = row.get("sectors")
             if not isinstance(sectors, list) or len(sectors) != SECTOR_COUNT:
-                self.fail(f"{path}.sectors", f"must list {SECTOR_COUNT} RGB colours")
+                self.fail(f"{path}.sectors", f"must list {SECTOR_COUNT} RGB colours, got {reprlib.repr(sectors)}")
             palettes.append(
                 Palette(
                     tuple(self.colour(colour, f"{path}.sectors") for colour in sectors),
@@ -401,18 +465,18 @@ class _Reader:
                 )
             )
 
-        route_table = document.get("routes")
-        if not isinstance(route_table, dict) or "main" not in route_table:
+        route_table = self.table(document.get("routes"), "routes")
+        if "main" not in route_table:
             self.fail("routes", "must be a table with at least a `main = [node, ...]` route")
         linked = {frozenset((c.start, c.end)) for c in corridors}
         routes = {}
         for route_name, sequence in route_table.items():
             path = f"routes.{route_name}"
             if not isinstance(sequence, list) or len(sequence) < 2:
-                self.fail(path, "must list at least two nodes")
+                self.fail(path, f"must list at least two nodes, got {reprlib.repr(sequence)}")
             for step, node in enumerate(sequence):
-                if node not in nodes:
-                    self.fail(path, f"unknown node {node!r} at position {step}")
+                if not isinstance(node, str) or node not in nodes:
+                    self.fail(path, f"unknown node {reprlib.repr(node)} at position {step}")
                 if step and frozenset((sequence[step - 1], node)) not in linked:
                     self.fail(path, f"no corridor between {sequence[step - 1]!r} and {node!r}")
             routes[route_name] = tuple(sequence)
@@ -427,7 +491,7 @@ class _Reader:
             detection_radius=radius,
             speed=speed,
             lateral_jitter=jitter,
-            description=str(document.get("description", "")),
+            description=description,
             source=self.source,
         )
         if 2 * radius >= floor.min_place_spacing:
@@ -437,6 +501,14 @@ class _Reader:
                 "(the radius must be under half the smallest spacing)",
             )
         return floor
+
+    def check_extent(self, nodes: dict, corridors: list) -> None:
+        """Refuse a floor wider or longer than :data:`MAX_EXTENT`, its nodes and corridor widths included."""
+        points = np.array(list(nodes.values()))
+        span = float((points.max(axis=0) - points.min(axis=0)).max()) + max(c.width for c in corridors)
+        if span > MAX_EXTENT:
+            self.fail("nodes", f"the floor spans {span:.4g} m (its nodes, and the widest corridor), more than "
+                               f"MAX_EXTENT = {MAX_EXTENT:g} m")
 
 
 def _clearance(point, nodes, corridors) -> float:
@@ -547,20 +619,46 @@ def corridor_grid(
     probability ``place_density`` (at least two places). The route visits the
     nodes in depth-first order of the tree, moving between them by shortest
     paths through the whole graph (so loops get closed), and returns home.
+    The arguments are bounded as a floor file's values are: at most
+    :data:`MAX_GRID_NODES` nodes spanning at most :data:`MAX_EXTENT`, corridors
+    at least 2 x ``ROBOT_CLEARANCE`` wide, a speed of at most :data:`MAX_SPEED`.
     """
     for label, value, low in (("rows", rows, 1), ("cols", cols, 1), ("loops", loops, 0)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f"{label} must be an integer >= {low}, got {value!r}")
     if rows * cols < 2:
         raise ValueError("a corridor grid needs at least two nodes (rows * cols >= 2)")
+    if rows * cols > MAX_GRID_NODES:
+        raise ValueError(f"rows x cols: a {rows}x{cols} grid has {rows * cols} nodes, more than MAX_GRID_NODES = "
+                         f"{MAX_GRID_NODES}")
+    positives = {"spacing": spacing, "corridor_width": corridor_width, "wall_height": wall_height,
+                 "detection_radius": detection_radius, "speed": speed}
+    for label, value in {"place_density": place_density, **positives}.items():
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise TypeError(f"{label} must be a number, got {value!r}")
     if not 0.0 <= place_density <= 1.0:
         raise ValueError(f"place_density must be in [0, 1], got {place_density!r}")
+    for label, value in positives.items():
+        positive(label, value)  # checked, not converted: the floor keeps the numbers as given
+    if corridor_width < 2 * ROBOT_CLEARANCE:
+        raise ValueError(f"corridor_width must be at least 2 x ROBOT_CLEARANCE = {2 * ROBOT_CLEARANCE:g} m (room for "
+                         f"the robot), got {corridor_width!r}")
+    span = spacing * (max(rows, cols) - 1) + corridor_width
+    if span > MAX_EXTENT:
+        raise ValueError(f"spacing: a {rows}x{cols} grid {spacing:g} m apart, corridors {corridor_width:g} m wide, "
+                         f"spans {span:.4g} m, more than MAX_EXTENT = {MAX_EXTENT:g} m")
+    if wall_height > MAX_EXTENT:
+        raise ValueError(f"wall_height must be at most MAX_EXTENT = {MAX_EXTENT:g} m, got {wall_height!r}")
+    if speed > MAX_SPEED:
+        raise ValueError(f"speed must be at most MAX_SPEED = {MAX_SPEED:g} m/s, got {speed!r}")
+    seed = whole_number("seed", seed, 0)
     if spacing <= 2 * detection_radius or spacing <= corridor_width:
         raise ValueError(f"spacing {spacing} m must exceed the corridor width and twice the detection radius")
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     cells = [(r, c) for r in range(rows) for c in range(cols)]
+    present = set(cells)
     lattice = sorted(
-        {tuple(sorted((a, b))) for a in cells for b in ((a[0] + 1, a[1]), (a[0], a[1] + 1)) if b in set(cells)}
+        {tuple(sorted((a, b))) for a in cells for b in ((a[0] + 1, a[1]), (a[0], a[1] + 1)) if b in present}
     )
     tree = _random_spanning_tree(cells, lattice, rng)
     spare = [edge for edge in lattice if edge not in tree]
