@@ -41,3 +41,12 @@ def semaphore_cell(cell: dict) -> dict:
 
     with tqdm(total=1, disable=True):
         return {"locked": True}
+
+
+def semaphore_sleepy_run_cell(cell: dict) -> dict:
+    """:func:`sleepy_run_cell` holding a named semaphore while it sleeps, as a real cell does (tqdm's lock, see
+    :func:`semaphore_cell`): a sweep stopped meanwhile must end it without leaving the semaphore behind."""
+    from tqdm import tqdm
+
+    with tqdm(total=1, disable=True):
+        return sleepy_run_cell(cell)

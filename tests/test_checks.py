@@ -67,3 +67,25 @@ def test_run_check_prints_what_held_writes_junit_and_fails_when_one_falls_short(
     assert main(["run", str(config), "--out", str(tmp_path), "--no-figures", "--no-progress", "--check",
                  "--junit", str(junit)]) == 0
     assert ElementTree.parse(junit).getroot().get("failures") == "0"
+
+
+def test_a_run_whose_every_cell_fails_writes_its_summary_and_failed_checks(tmp_path, monkeypatch, capsys):
+    """Before issue 47 a table of failed cells alone (no score columns) ended in ``KeyError: 'gt_mass'``: no
+    summary.md, no checks.xml, a traceback."""
+    from sweep_fakes import failing_cell
+
+    monkeypatch.setattr(ptm_bench.cli.run, "run_cell", failing_cell)
+    config = tmp_path / "ci.toml"
+    config.write_text(CONFIG)
+    code = main(["run", str(config), "--out", str(tmp_path), "--workers", "2", "--no-progress", "--check"])
+    printed = capsys.readouterr().out
+    assert code == 1
+    assert "0 cells finished, 4 failed" in printed and "0 held, 2 did not" in printed
+    summary = (tmp_path / "ci" / "summary.md").read_text()
+    assert "**Every cell failed** (4 of 4)" in summary
+    assert all(f"ValueError: seed {seed}: no signal" in summary for seed in (0, 1))
+    assert r"| short_loop\|a=0\|noise=1\|seed=0\|appearance | ValueError: seed 0: no signal" in summary
+    report = ElementTree.parse(tmp_path / "ci" / "checks.xml").getroot()
+    assert report.get("tests") == "2" and report.get("failures") == "2"
+    assert {failure.get("message") for failure in report.iter("failure")} == {
+        "map_correct = no finished cells, expected >= 0.5", "gt_mass = no finished cells, expected >= 0.9"}

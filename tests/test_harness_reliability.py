@@ -92,7 +92,7 @@ def test_an_unknown_key_is_refused_at_every_level_with_its_path(tmp_path, text, 
     assert str(refused.value).startswith(f"{tmp_path / 'tiny.toml'}: {path} is an unknown key")
 
 
-def test_defaults_has_the_28_keys_of_the_typed_records_and_the_samplers_defaults():
+def test_defaults_has_the_29_keys_of_the_typed_records_and_the_samplers_defaults():
     """DEFAULTS is read off the settings records; the sampler settings a config leaves unset are those the library
     would take itself (``ptm.SamplerOptions``, ``ptm.tempered_mcmc``)."""
     import dataclasses
@@ -100,7 +100,7 @@ def test_defaults_has_the_28_keys_of_the_typed_records_and_the_samplers_defaults
 
     import ptm
 
-    assert sum(len(keys) for keys in settings.DEFAULTS.values()) == 28
+    assert sum(len(keys) for keys in settings.DEFAULTS.values()) == 29
     assert all(list(settings.DEFAULTS[name]) == [item.name for item in dataclasses.fields(record)]
                for name, record in settings.SECTIONS.items())
     assert experiment.DEFAULTS is settings.DEFAULTS
@@ -133,6 +133,7 @@ def test_settings_records_are_frozen_picklable_and_json_in_a_cells_definition(tm
 # -- the sweep engine: tables of other experiments, locks, killed and interrupted runs ---------------------------
 
 import os  # noqa: E402
+import re  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -304,27 +305,56 @@ def run_command(tmp_path, cell, *arguments, **options):
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_ctrl_c_ends_a_run_with_one_line_on_how_to_resume_and_the_table_intact(tmp_path):
+@pytest.mark.parametrize("stop, status, said", [
+    (signal.SIGINT, 130, "interrupted"),         # Ctrl-C: the terminal signals the whole process group
+    (signal.SIGHUP, 129, "stopped by SIGHUP"),   # the terminal closes: the same, fork server and cells included
+], ids=["ctrl-c", "sighup"])
+def test_a_stopped_run_says_how_to_resume_in_one_line_and_leaves_its_table_intact(tmp_path, stop, status, said):
+    """Before issue 47 SIGHUP killed the run at once (no word, the lock file left), and every stop left the
+    semaphores of the cells it ended to the resource tracker's "leaked semaphore" warning."""
     (tmp_path / "small.toml").write_text(SMALL_CONFIG)
     folder = tmp_path / "out" / "small"
-    process = run_command(tmp_path, "sleepy_run_cell", "run", "small.toml", "--out", "out", "--workers", "2",
-                          "--no-progress", start_new_session=True)
+    process = run_command(tmp_path, "semaphore_sleepy_run_cell", "run", "small.toml", "--out", "out", "--workers",
+                          "2", "--no-progress", start_new_session=True)
     try:
         assert wait_for(lambda: len(list(folder.glob("*.pid"))) >= 3 and (folder / "cells.csv").is_file())
         workers = [int(p.stem) for p in folder.glob("*.pid")]
-        os.killpg(process.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        os.killpg(process.pid, stop)
         _, stderr = process.communicate(timeout=30)
     finally:
         process.kill()
-    assert process.returncode == 130
-    assert "Traceback" not in stderr and "leaked" not in stderr, stderr
+    assert process.returncode == status
+    assert "Traceback" not in stderr and "leaked" not in stderr and "resource_tracker" not in stderr, stderr
     lines = [line for line in stderr.splitlines() if line.strip()]
-    assert lines == [f"ptm-bench run: interrupted; every finished cell is in {Path('out/small/cells.csv')}; "
+    assert lines == [f"ptm-bench run: {said}; every finished cell is in {Path('out/small/cells.csv')}; "
                      "rerun `ptm-bench run small.toml --out out` to resume"]
     assert wait_for(lambda: not any(alive(pid) for pid in workers), timeout=5)
     table = sweep.read_table(folder / "cells.csv")
     assert table["seed"].tolist() == [0] and table["status"].tolist() == ["ok"]
-    assert not (folder / "cells.csv.lock").exists()
+    assert sorted(path.name for path in folder.iterdir() if path.suffix != ".pid") == ["cells.csv"]  # no lock, no .tmp
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGHUP], ids=["sigterm", "sighup"])
+def test_sigterm_and_sighup_stop_a_command_as_ctrl_c_does(tmp_path, monkeypatch, capsys, stop):
+    """``kill PID`` (a batch system's time limit) and a closing terminal: one line, exit status 128 + the signal's
+    number, the process's handlers restored afterwards. Before issue 47 either killed the run without a word."""
+    import ptm_bench.cli.run
+
+    if signal.getsignal(stop) != signal.SIG_DFL:
+        pytest.skip(f"{stop.name} has a handler in this process (a test runner's): the command leaves it alone")
+
+    def stopped_sweep(*args, **kwargs):
+        os.kill(os.getpid(), stop)
+        time.sleep(10)  # the handler raises at once
+        raise AssertionError(f"{stop.name} did not stop the command")
+
+    monkeypatch.setattr(ptm_bench.cli.run, "run_sweep", stopped_sweep)
+    (tmp_path / "small.toml").write_text(SMALL_CONFIG)
+    assert main(["run", str(tmp_path / "small.toml"), "--out", str(tmp_path)]) == 128 + stop
+    assert capsys.readouterr().err.strip() == (
+        f"ptm-bench run: stopped by {stop.name}; every finished cell is in {tmp_path / 'small' / 'cells.csv'}; "
+        f"rerun `ptm-bench run {tmp_path / 'small.toml'} --out {tmp_path}` to resume")
+    assert signal.getsignal(stop) == signal.SIG_DFL
 
 
 def test_failed_cells_are_summarised_with_the_retry_command():
@@ -436,3 +466,81 @@ def test_the_demo_refuses_a_folder_with_another_commands_report(tmp_path, capsys
     assert main(["demo", "--world", "short_loop", "--out", str(tmp_path)]) == 2
     assert "holds a summary.md that is not the demo's" in capsys.readouterr().err
     assert (tmp_path / "summary.md").read_text() == "# Appearance predictive check"
+
+
+# -- issue 47: copies of the scored run, temporary and damaged tables, report paths, names -------------------------
+
+def test_a_recorded_run_calibrated_on_a_copy_of_itself_is_refused_naming_both_files(tmp_path):
+    """Before issue 47 only the paths were compared: a copy of the scored run under another name calibrated it."""
+    from helpers import square_loop_dataset
+
+    from ptm_bench.evaluation.calibration import calibration_datasets
+
+    scored = square_loop_dataset(0).save(tmp_path / "loop0.npz")
+    other = square_loop_dataset(10).save(tmp_path / "loop10.npz")
+    copy = square_loop_dataset(0).replace(meta={"source": "a copy"}).save(tmp_path / "copy.npz")
+    config = experiment.parse_experiment({
+        "sweep": {"worlds": [{"dataset": str(scored), "name": "loop", "calibration": [str(other), str(copy)]}],
+                  "seeds": [0]},
+        "variants": [{"name": "appearance", "models": ["appearance"]}]})
+    (cell,) = experiment.expand_cells(config, tmp_path / "results")
+    with pytest.raises(ValueError, match=rf"calibration: .*{copy}.* holds the same run as {scored}"):
+        calibration_datasets(cell)
+
+
+def test_a_killed_runs_temporary_table_is_deleted_by_the_next_run(tmp_path):
+    """A SIGKILL between the atomic writer's write and its rename leaves its temporary file; before issue 47 it
+    stayed beside the table for good."""
+    path = tmp_path / "cells.csv"
+    left = tmp_path / ".cells.csv.k1ll3d00.tmp"
+    left.write_bytes(b"")
+    another = tmp_path / ".summary.md.k1ll3d00.tmp"  # another file's: not the sweep's to delete
+    another.write_bytes(b"")
+    sweep.run_sweep(cells_of("t"), dict, path, workers=1, progress=False)
+    assert not left.exists() and another.exists()
+
+
+@pytest.mark.parametrize("damage, problem", [
+    (lambda line: line.rsplit(",", 2)[0], "a damaged row (4 fields where the header has 6)"),
+    (lambda line: line.replace(",ok,", ",okay,"), "a damaged row (status 'okay' is neither 'ok' nor 'error')"),
+], ids=["fields-lost", "status"])
+def test_a_damaged_row_of_the_table_is_named_by_file_and_line(tmp_path, damage, problem):
+    """Before issue 47 a row that lost its last fields read as a failed cell with a blank error."""
+    path = tmp_path / "cells.csv"
+    sweep.run_sweep(cells_of("t"), dict, path, workers=1, progress=False)
+    lines = path.read_text().splitlines()
+    assert lines[0] == "cell_id,experiment,seed,status,error,attempts"
+    lines[2] = damage(lines[2])
+    path.write_text("\n".join(lines) + "\n")
+    message = rf"{path}, line 3: {re.escape(problem)}; delete that line and rerun"
+    with pytest.raises(ValueError, match=message):
+        sweep.read_table(path)
+    with pytest.raises(ValueError, match=message):
+        sweep.run_sweep(cells_of("t"), dict, path, workers=1, progress=False)
+
+
+def test_junit_must_be_a_file_in_an_existing_folder_and_is_checked_before_the_sweep(tmp_path, monkeypatch, capsys):
+    """Before issue 47 ``--junit DIR`` ran the whole sweep, then failed as it wrote the report: "error: DIR Is a
+    directory", exit status 1."""
+    import ptm_bench.cli.run
+    from sweep_fakes import scored_cell
+
+    monkeypatch.setattr(ptm_bench.cli.run, "run_cell", scored_cell)
+    config = tmp_path / "small.toml"
+    config.write_text(SMALL_CONFIG + '[checks]\ngt_mass = ">= 0.9"\n')
+    arguments = ["run", str(config), "--out", str(tmp_path / "out"), "--workers", "1", "--no-figures",
+                 "--no-progress", "--check", "--junit"]
+    assert main([*arguments, str(tmp_path)]) == 2
+    assert f"--junit {tmp_path} is a folder; --junit needs the path of a file" in capsys.readouterr().err
+    assert main([*arguments, str(tmp_path / "missing" / "checks.xml")]) == 2
+    assert f"folder {tmp_path / 'missing'} does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "small" / "cells.csv").exists()  # refused before any cell ran
+
+
+@pytest.mark.parametrize("name", ["two\nlines", "tab\there", "bell\a", "line\u2028separator"])
+def test_a_variant_name_with_a_control_character_is_refused_naming_the_variant(tmp_path, name):
+    """Before issue 47 a newline in a variant's name was accepted, into every cell id and row of that variant."""
+    with pytest.raises(ValueError, match=rf"variants\[{re.escape(repr(name))}\]\.name must be a non-empty string of "
+                                         "printable characters"):
+        experiment.parse_experiment({"sweep": {"worlds": ["short_loop"], "seeds": [0]},
+                                     "variants": [{"name": name, "models": ["appearance"]}]})

@@ -65,16 +65,19 @@ def test_the_mapper_uses_the_settings_appearance_model(runs):
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--calibration", "SELF"], "is the replayed dataset itself"),
+    (["--calibration", "SELF"], "loop0.npz holds the same run as the replayed dataset"),
+    (["--calibration", "CAL", "COPY"], "copy.npz holds the same run as the replayed dataset"),
     (["--calibration", "UNLABELLED"], "held-out run 0 has no labels"),
     (["--calibration", "CAL", "--ptm-out", "result.txt"], "PTM files end in .npz"),
     (["--calibration", "CAL", "--models", "odometry"], "no odometry for the odometry model"),
-], ids=["itself", "unlabelled", "ptm-suffix", "missing-odometry"])
+], ids=["itself", "copy", "unlabelled", "ptm-suffix", "missing-odometry"])
 def test_bad_input_is_refused_with_the_reason(runs, tmp_path, capsys, extra, message):
     no_odometry = ptm.Dataset(signatures=loop_dataset(0).signatures, meta={"detection_radius": 0.5})
     dataset = no_odometry.save(tmp_path / "plain.npz") if "odometry" in extra else runs[0]
     unlabelled = ptm.Dataset(signatures=loop_dataset(10).signatures).save(tmp_path / "unlabelled.npz")
-    names = {"SELF": str(dataset), "UNLABELLED": str(unlabelled), "CAL": str(runs[10]),
+    # the replayed run under another name, its provenance rewritten: the same run all the same
+    copy = loop_dataset(0).replace(meta={"source": "a copy"}).save(tmp_path / "copy.npz")
+    names = {"SELF": str(dataset), "UNLABELLED": str(unlabelled), "CAL": str(runs[10]), "COPY": str(copy),
              "result.txt": str(tmp_path / "result.txt")}
     assert main(["online", str(dataset), *[names.get(item, item) for item in extra]]) == 2
     assert message in capsys.readouterr().err

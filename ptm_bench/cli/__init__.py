@@ -10,11 +10,15 @@ adding its parser and setting ``handler`` to a function ``(args) -> int``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import signal
 import sys
 
 from ptm_bench.cli.options import RESUME_HINT
+
+#: Signals that stop a command as Ctrl-C does (:func:`_stopped_by_signals`).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 # Modules that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
@@ -48,22 +52,60 @@ def main(argv=None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
-    # A shell starts a background command of a script with SIGINT ignored, and Python then installs no handler:
-    # a later Ctrl-C or `kill -INT` would not stop a sweep. Ask for Python's own handler in any case.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    with _stopped_by_signals():
+        try:
+            return int(args.handler(args) or 0)
+        except (ValueError, FileNotFoundError) as error:  # bad input; a programming error keeps its traceback
+            print(f"ptm-bench {args.command}: error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:  # the machine refused (a full disk, a permission): no traceback, the file named
+            where = f" {error.filename}" if error.filename else ""
+            print(f"ptm-bench {args.command}: error:{where} {error.strerror or error}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt as error:  # Ctrl-C, SIGTERM, SIGHUP: one line, no traceback; finished work is kept
+            number = error.signum if isinstance(error, Stopped) else signal.SIGINT
+            how = "interrupted" if number == signal.SIGINT else f"stopped by {signal.Signals(number).name}"
+            hint = getattr(args, RESUME_HINT, None)
+            print(f"\nptm-bench {args.command}: {how}{f'; {hint}' if hint else ''}", file=sys.stderr)
+            return 128 + number
+
+
+class Stopped(KeyboardInterrupt):
+    """A stop signal arrived (``signum``): raised where the command is, so that it unwinds as on Ctrl-C (finished
+    work kept, temporary files and locks removed, worker processes ended)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _stop(signum, frame) -> None:
+    """Raise :class:`Stopped`; further stop signals are ignored from here on, so the unwinding completes."""
+    for number in STOP_SIGNALS:
+        signal.signal(number, signal.SIG_IGN)
+    raise Stopped(signum)
+
+
+@contextlib.contextmanager
+def _stopped_by_signals():
+    """While a command runs, Ctrl-C (SIGINT), SIGTERM (``kill``, a batch system's time limit) and SIGHUP (the
+    terminal closing) stop it with :class:`Stopped`; its exit status is then 128 + the signal's number, as a shell
+    reports it. The previous handlers are restored afterwards.
+
+    A shell starts a background command of a script with SIGINT ignored: a later Ctrl-C or ``kill -INT``
+    must stop a sweep all the same, so SIGINT is always handled. SIGTERM and SIGHUP are handled only where they
+    have their default action: under ``nohup``, which ignores SIGHUP, a run outlives its terminal.
+    """
+    previous = {number: signal.getsignal(number) for number in STOP_SIGNALS}
+    for number, handler in previous.items():
+        if number == signal.SIGINT or handler == signal.SIG_DFL:
+            signal.signal(number, _stop)
     try:
-        return int(args.handler(args) or 0)
-    except (ValueError, FileNotFoundError) as error:  # bad input; a programming error keeps its traceback
-        print(f"ptm-bench {args.command}: error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:  # the machine refused (a full disk, a permission): no traceback, the file named
-        where = f" {error.filename}" if error.filename else ""
-        print(f"ptm-bench {args.command}: error:{where} {error.strerror or error}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback; what was finished is kept
-        hint = getattr(args, RESUME_HINT, None)
-        print(f"\nptm-bench {args.command}: interrupted{f'; {hint}' if hint else ''}", file=sys.stderr)
-        return 130
+        yield
+    finally:
+        for number, handler in previous.items():
+            if handler is not None:  # None: a handler installed outside Python, left as it is
+                signal.signal(number, handler)
 
 
 if __name__ == "__main__":

@@ -2,10 +2,10 @@
 
 The mapper's models are the harness's defaults (:data:`ptm_bench.evaluation.settings.DEFAULTS`), built by the
 builder a sweep's cells use and calibrated on labelled held-out datasets (``--calibration``, never the replayed
-one), as a sweep calibrates them (:mod:`ptm_bench.evaluation.online`). It prints the latency of each update
-every ``--every`` detections, then the latency summary, the most probable topologies and, where the
-dataset has labels, the final MAP's adjusted Rand index and the ground truth's mass; ``--ptm-out`` keeps
-the final PTM (for ``ptm-bench export --ptm``).
+one nor a copy of it, compared by content: :mod:`ptm_bench.evaluation.held_out`), as a sweep calibrates them
+(:mod:`ptm_bench.evaluation.online`). It prints the latency of each update every ``--every`` detections, then the
+latency summary, the most probable topologies and, where the dataset has labels, the final MAP's adjusted Rand
+index and the ground truth's mass; ``--ptm-out`` keeps the final PTM (for ``ptm-bench export --ptm``).
 
     $ ptm-bench import-carmen intel --out intel.npz      # and aces, fhw, acapulco likewise
     $ ptm-bench online intel.npz --calibration aces.npz fhw.npz acapulco.npz --ptm-out intel_ptm.npz
@@ -19,6 +19,7 @@ import numpy as np
 
 import ptm
 from ptm_bench.cli.options import positive_int, print_parameters
+from ptm_bench.evaluation.held_out import refuse_scored_run
 from ptm_bench.evaluation.online import calibrated_mapper, collapse_warning, replay
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 from ptm_bench.evaluation.settings import MODEL_NAMES, Variant
@@ -33,7 +34,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("dataset", type=Path, help="a ptm.Dataset .npz (ptm-bench generate / import-carmen)")
     parser.add_argument("--calibration", type=Path, nargs="+", required=True, metavar="DATASET",
-                        help="labelled held-out datasets to calibrate on (not the replayed one)")
+                        help="labelled held-out datasets to calibrate on (not the replayed one, nor a copy of it)")
     parser.add_argument("--models", nargs="+", choices=MODEL_NAMES, default=list(MODEL_NAMES),
                         help="likelihood models (default: both)")
     parser.add_argument("--particles", type=positive_int, default=128, help="particles of the mapper (default 128)")
@@ -45,11 +46,8 @@ def register(subparsers) -> None:
 
 def _run_online(args) -> int:
     dataset = ptm.Dataset.load(args.dataset)
-    held_out = []
-    for path in args.calibration:
-        if path.resolve() == args.dataset.resolve():
-            raise ValueError(f"calibration: {path} is the replayed dataset itself; calibrate on other runs")
-        held_out.append(ptm.Dataset.load(path))
+    held_out = [ptm.Dataset.load(path) for path in args.calibration]
+    refuse_scored_run(dataset, f"the replayed dataset {args.dataset}", dict(zip(map(str, args.calibration), held_out)))
     if args.ptm_out is not None and args.ptm_out.suffix != ".npz":
         raise ValueError(f"--ptm-out: PTM files end in .npz, got {args.ptm_out.name!r}")
     mapper, used = calibrated_mapper(dataset, held_out, Variant("online", models=tuple(args.models)),

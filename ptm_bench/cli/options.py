@@ -20,7 +20,7 @@ import argparse
 import os
 from pathlib import Path
 
-__all__ = ["RESUME_HINT", "dataset_output", "output_folder", "positive_int", "print_parameters"]
+__all__ = ["RESUME_HINT", "dataset_output", "output_folder", "positive_int", "print_parameters", "report_file"]
 
 #: Attribute of the parsed arguments that a command sets to say how to resume it; printed on Ctrl-C.
 RESUME_HINT = "resume_hint"
@@ -65,6 +65,18 @@ def dataset_output(path) -> Path:
     if not os.access(folder, os.W_OK):
         raise ValueError(f"out: folder {folder} is not writable")
     return out
+
+
+def report_file(path, option: str) -> Path:
+    """The path of a report file a command writes (``--junit``): a file in an existing folder, not a folder;
+    ``ValueError`` naming ``option`` otherwise, before any work is done."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a folder; {option} needs the path of a file, e.g. {path / 'checks.xml'}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"{option} {path}: folder {folder} does not exist")
+    return path
 
 
 def print_parameters(used: dict) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ptm_bench.cli.options import RESUME_HINT, output_folder, positive_int
+from ptm_bench.cli.options import RESUME_HINT, output_folder, positive_int, report_file
 from ptm_bench.evaluation.cell import run_cell
 from ptm_bench.evaluation.experiment import describe, expand_cells, load_experiment
 from ptm_bench.evaluation.sweep import run_sweep
@@ -67,7 +67,7 @@ def register(subparsers) -> None:
     parser.add_argument("--check", action="store_true",
                         help="check the config's [checks] thresholds; exit 1 if one fails; write a JUnit XML report")
     parser.add_argument("--junit", type=Path, default=None,
-                        help="where --check writes its report (default: OUT/NAME/checks.xml)")
+                        help="the file where --check writes its report (default: OUT/NAME/checks.xml)")
     parser.add_argument("--no-figures", action="store_true", help="write summary.md without drawing figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
@@ -76,6 +76,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     experiment = load_experiment(args.config)
     output_folder(args.out, "--out")
+    if args.junit is not None:
+        report_file(args.junit, "--junit")
     results_dir = output_folder(args.out / experiment.name, "--out")
     cells = expand_cells(experiment, results_dir)
     print(describe(experiment))

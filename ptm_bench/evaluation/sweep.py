@@ -34,9 +34,12 @@ results, and ``status`` (``ok`` or ``error``) with ``error`` (the message).
   the kernel when that process ends however it ends, so the lock of a killed
   run is taken over), and a second run of the same table is refused. A table
   of another experiment (its ``experiment`` column) is never overwritten.
+  The temporary tables a killed run left mid-write are deleted by the next run.
+  A damaged row of the table is an error naming its line (:func:`read_table`).
 * A cell process dies with the sweep: killed, even by SIGKILL, the sweep
-  takes its workers with it; on Ctrl-C the workers ignore the interrupt and the sweep ends them,
-  so the table holds every finished cell and a rerun resumes.
+  takes its workers with it; on Ctrl-C (or SIGTERM, SIGHUP: ``ptm-bench`` turns them
+  into the same interrupt) the workers ignore the terminal's signals and the sweep ends them,
+  each through its interpreter's shutdown, so the table holds every finished cell and a rerun resumes.
 
 Cell functions are deterministic in their cell's seeds, so the table is the
 same on a process pool and on a cluster, apart from the columns :data:`TIMING_COLUMNS` matches.
@@ -61,9 +64,12 @@ On a cluster, ``run_sweep(cells, run_cell, path, scheduler="tcp://10.0.0.5:8786"
 from __future__ import annotations
 
 import contextlib
+import csv
 import fcntl
+import glob
 import multiprocessing
 import multiprocessing.connection
+import multiprocessing.forkserver
 import os
 import re
 import select
@@ -71,6 +77,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -94,15 +101,40 @@ CellFn = Callable[[dict], dict]
 
 
 def read_table(path) -> pd.DataFrame:
-    """The table of a sweep, or an empty frame if it has not started."""
+    """The table of a sweep, or an empty frame if it has not started.
+
+    A damaged row (a field too few or too many, or a ``status`` other than ``ok`` and ``error``) is a
+    ``ValueError`` naming the file and the line, never a row of blank values.
+    """
     path = Path(path)
     if not path.is_file():
         return pd.DataFrame()
     try:
+        _check_rows(path)
         return pd.read_csv(path, keep_default_na=True)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, csv.Error) as error:
         raise ValueError(f"{path} is not a readable sweep table ({type(error).__name__}: {error}); "
                          "move it away to start the sweep afresh") from None
+
+
+def _check_rows(path: Path) -> None:
+    """``ValueError`` naming the line of the first row whose fields do not match the header."""
+    csv.field_size_limit(max(csv.field_size_limit(), path.stat().st_size))  # a field may be a long JSON value
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        reader = csv.reader(handle, strict=True)  # strict: a quote left open is an error, not a field to the end
+        header = next(reader, [])
+        status = header.index("status") if "status" in header else None
+        for record in reader:
+            if not record:  # a blank line, which pandas skips too
+                continue
+            if len(record) != len(header):
+                problem = f"{len(record)} fields where the header has {len(header)}"
+            elif status is not None and record[status] not in ("ok", "error"):
+                problem = f"status {record[status]!r} is neither 'ok' nor 'error'"
+            else:
+                continue
+            raise ValueError(f"{path}, line {reader.line_num}: a damaged row ({problem}); delete that line and "
+                             "rerun to compute its cell again")
 
 
 def comparable(table: pd.DataFrame) -> pd.DataFrame:
@@ -152,6 +184,7 @@ def _run_locked(cells, cell_fn, table_path: Path, *, workers, scheduler, max_att
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
 
+    _remove_stale_temporaries(table_path)
     previous = read_table(table_path)
     rows: dict[str, dict] = {}
     if len(previous):
@@ -175,7 +208,9 @@ def _run_locked(cells, cell_fn, table_path: Path, *, workers, scheduler, max_att
     else:
         outcomes = _dask_outcomes(pending, cell_fn, scheduler, connect_timeout)
     order = {cell_id: index for index, cell_id in enumerate(cell_ids)}
-    with tqdm(total=len(cells), initial=len(cells) - len(pending), unit="cell", disable=not progress) as bar:
+    # closed on the way out, also on an interrupt: its workers end before the lock is released
+    with contextlib.closing(outcomes), tqdm(total=len(cells), initial=len(cells) - len(pending), unit="cell",
+                                            disable=not progress) as bar:
         for cell, outcome in outcomes:
             rows[_cell_id(cell)] = _row(cell, outcome)
             _write_table(table_path, rows, order)
@@ -255,6 +290,13 @@ def table_lock(table_path):
     finally:
         lock_path.unlink(missing_ok=True)  # still locked by us, so no other run holds this file
         os.close(descriptor)
+
+
+def _remove_stale_temporaries(table_path: Path) -> None:
+    """Delete the temporary tables (``.NAME.*.tmp`` of ``atomic_write``) that a killed run left beside the table;
+    called under the table's lock, so no run is writing one."""
+    for temporary in table_path.parent.glob(f".{glob.escape(table_path.name)}.*.tmp"):
+        temporary.unlink(missing_ok=True)
 
 
 def _check_same_experiment(previous: pd.DataFrame, cells: Sequence[dict], table_path: Path) -> None:
@@ -337,8 +379,10 @@ def _die_with_sweep(connection) -> threading.Event:
     reports an error on the write end here. A thread waits for that and ends
     the process, so no orphan runs on to die on a broken pipe. (The parent
     process of a cell is the fork server, which outlives it, so a parent-death
-    signal would not fire.) SIGINT reaches the whole process group on Ctrl-C;
-    the sweep ends its workers itself, so a worker ignores it. Once the event is
+    signal would not fire.) SIGINT (Ctrl-C) and SIGHUP (the terminal closing)
+    reach the whole process group; the sweep ends its workers itself, so a
+    worker ignores them. The sweep ends a worker with SIGTERM, which exits it
+    through the interpreter's shutdown (:func:`_exit_normally`). Once the event is
     set, a closed pipe (the sweep has read the outcome, or this process closed
     its end) ends the watch instead: an ``os._exit`` then would cut the
     interpreter's shutdown short, before it unlinks its semaphores, and the
@@ -346,6 +390,8 @@ def _die_with_sweep(connection) -> threading.Event:
     """
     finishing = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_normally)
     if not hasattr(select, "poll"):
         return finishing
     poller = select.poll()
@@ -361,12 +407,54 @@ def _die_with_sweep(connection) -> threading.Event:
     return finishing
 
 
+def _exit_normally(signum, frame) -> None:
+    """A cell process's SIGTERM handler: exit through the interpreter's shutdown, which unlinks the semaphores the
+    cell created (ended by the signal's default action, it would leave them, and the resource tracker would warn
+    of leaked semaphores after an interrupted sweep)."""
+    sys.exit(128 + signum)
+
+
+#: Seconds a cell process has to exit after the sweep's SIGTERM before it is killed (a cell inside a long call
+#: into C code runs no Python signal handler until it returns).
+END_GRACE_S = 5.0
+
+
+def _end(processes) -> None:
+    """End the running cell processes: SIGTERM to each (:func:`_exit_normally`), SIGKILL to any still running
+    :data:`END_GRACE_S` seconds later."""
+    processes = list(processes)
+    for process in processes:
+        process.terminate()
+    deadline = time.monotonic() + END_GRACE_S
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.exitcode is None:
+            process.kill()
+            process.join()
+
+
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _start_fork_server() -> None:
+    """Start the fork server, and with it multiprocessing's resource tracker, with SIGHUP blocked, as they keep it.
+
+    A terminal that closes sends SIGHUP to its whole process group. The sweep then ends its cell processes,
+    which unlink their semaphores through the resource tracker as they exit; a tracker ended by the same
+    SIGHUP would make each of them warn and start another.
+    """
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator[tuple[dict, dict]]:
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if not cells:  # a resumed sweep with nothing left to run starts no fork server
+        return
     context = multiprocessing.get_context("forkserver")
     # One process per core already: a cell's BLAS must not start threads of its own. Threaded BLAS on
     # the small matrices of a cell oversubscribes the cores (an odometry evaluation on office took 28 ms
@@ -378,6 +466,7 @@ def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator
     # (unlike forking this process, which may have started MuJoCo's EGL renderer) and, with the
     # heavy modules preloaded there, much cheaper than spawning a new interpreter per cell.
     context.set_forkserver_preload(_PRELOADED_MODULES)
+    _start_fork_server()
     queue = deque((cell, 1) for cell in cells)
     running: dict = {}
     try:
@@ -405,9 +494,7 @@ def _local_outcomes(cells, cell_fn, workers: int, max_attempts: int) -> Iterator
                     yield cell, _failed(f"worker died (exit code {process.exitcode}) on every one of {attempt} "
                                         "attempts", attempt)
     finally:
-        for process, _, _ in running.values():
-            process.terminate()
-            process.join()
+        _end(process for process, _, _ in running.values())
 
 
 # -- Dask distributed -------------------------------------------------------------------------
