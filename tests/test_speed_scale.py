@@ -1,7 +1,7 @@
 """``ptm-bench speed --section scale`` runs end to end on small grids (its full size is a benchmark, not a test).
 
-At ``--scale 0.2`` the agreement grids shrink to 3 x 3 and 4 x 4 (ten to twenty detections) and the online ones
-to 4 x 4, 6 x 6 and 7 x 7: the time to agreement comes from the sampler's own doublings (``diag_doublings`` of the sweep
+At ``--scale 0.1`` the agreement grid shrinks to 3 x 3 (about ten detections) and the online ones to 3 x 3,
+4 x 4 and 5 x 5: the time to agreement comes from the sampler's own doublings (``diag_doublings`` of the sweep
 cell), and the online mapper replays the three runs, with a latency row per 20 updates.
 """
 
@@ -19,7 +19,7 @@ METRICS = {"agreement_samples_per_chain", "agreement_wall_s", "agreement_rhat_lo
 
 
 def test_the_scale_section_writes_every_metric_on_small_grids(tmp_path):
-    assert main(["speed", "--section", "scale", "--scale", "0.2", "--out", str(tmp_path)]) == 0
+    assert main(["speed", "--section", "scale", "--scale", "0.1", "--out", str(tmp_path)]) == 0
     rows = pd.read_csv(tmp_path / "speed.csv")
     rows = rows[rows["section"] == "scale"]
     online_runs = rows.loc[rows["metric"] == "online_map_ari", "n"].tolist()
