@@ -14,16 +14,19 @@ atomically (a temporary file in the same folder, then a rename).
 
 from __future__ import annotations
 
+import decimal
 import json
+import math
+import numbers
 import os
+import re
 import tempfile
-import zipfile
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._npz import read_npz
 from ._validation import finite_array
 from .se2 import wrap_angle
 
@@ -177,16 +180,7 @@ class Dataset:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"no dataset file at {path}")
-        try:
-            loaded = np.load(path, allow_pickle=False)
-            if not isinstance(loaded, np.lib.npyio.NpzFile):
-                raise ValueError("it holds a single array (.npy), not the named arrays of a dataset (.npz)")
-            with loaded as archive:
-                contents = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError, EOFError, KeyError, NotImplementedError, zipfile.BadZipFile, zlib.error) as error:
-            # a truncated, foreign or damaged file: BadZipFile, zlib.error, EOFError or (an unknown compression
-            # method in a damaged zip header) NotImplementedError from deep inside numpy
-            raise ValueError(f"{path} is not a readable dataset file ({type(error).__name__}: {error})") from None
+        contents = read_npz(path, "dataset")
         unknown = set(contents) - set(_ARRAY_FIELDS) - {"meta"}
         if unknown:
             raise ValueError(f"{path} has unknown fields {sorted(unknown)}")
@@ -207,18 +201,21 @@ class Dataset:
 
         ``odometry``: a CSV with one row ``dx,dy,dtheta`` per step (N-1 rows);
         ``signatures``: a CSV with one row of K numbers per detection (N rows);
-        ``labels``: optional CSV with one integer per line. A first line of
-        names only is a header and skipped (a byte-order mark is ignored); any
-        other cell that is not a number is a ``ValueError`` naming file, line
-        and cell.
+        ``labels``: optional CSV with one integer per line, read exactly (any
+        integer in [-2**63, 2**63), also as ``1e6`` or ``3.0``). A first line
+        of names (a letter first, then letters, digits, ``_``, ``-`` or spaces,
+        an optional unit in brackets), one per column, is a header and skipped
+        (a byte-order mark is ignored); any other cell that is not a finite
+        real number (a label: a whole number in range) is a ``ValueError``
+        naming file, line and cell.
         """
         if odometry is None and signatures is None:
             raise ValueError("from_csv needs an odometry file, a signatures file, or both")
-        odometry_rows = _read_csv("odometry", odometry, width=3) if odometry is not None else None
-        signature_rows = _read_csv("signatures", signatures) if signatures is not None else None
+        odometry_rows = np.array(_read_csv("odometry", odometry, _real, width=3)) if odometry is not None else None
+        signature_rows = np.array(_read_csv("signatures", signatures, _real)) if signatures is not None else None
         label_rows = None
         if labels is not None:
-            label_rows = _read_csv("labels", labels, width=1)[:, 0]
+            label_rows = np.array([row[0] for row in _read_csv("labels", labels, _label, width=1)], dtype=np.int64)
         return cls(odometry=odometry_rows, signatures=signature_rows, labels=label_rows, meta=meta or {})
 
     def __repr__(self) -> str:
@@ -258,19 +255,35 @@ def _validated_labels(labels, n: int) -> np.ndarray:
     array = np.asarray(labels)
     if array.ndim != 1 or array.shape[0] != n:
         raise ValueError(f"labels must have shape ({n},), got {array.shape}")
+    if array.dtype.kind in "fO" and all(isinstance(label, numbers.Integral) and not isinstance(label, (bool, np.bool_))
+                                        for label in labels):
+        # Python integers past int64 turn numpy's array into floats or objects: check them as the integers they are
+        array = np.array([_int64_label(int(label), f"labels[{index}] = {label!r}")
+                          for index, label in enumerate(labels)])
     if array.dtype.kind == "f":
         if not np.all(np.isfinite(array)) or not np.all(array == np.round(array)):
             raise ValueError("labels must be integers")
-    elif array.dtype.kind not in "iu":
+        beyond = (array < _INT64.min) | (array >= 2.0 ** 63)  # checked before the cast: 1e20 would wrap round
+    elif array.dtype.kind == "u":
+        beyond = array > _INT64.max
+    elif array.dtype.kind == "i":
+        beyond = np.zeros(n, dtype=bool)
+    else:
         raise ValueError(f"labels must be integers, got dtype {array.dtype}")
-    # checked before the cast: 1e20 and 2e20 would both become -2**63, one place
-    if array.size and (np.any(array < -_INT64_LIMIT) or np.any(array >= _INT64_LIMIT)):
-        worst = array.flat[int(np.argmax(np.abs(array.astype(float))))]
-        raise ValueError(f"labels must fit in 64-bit integers (|label| < 2**63), got {worst!r}")
+    if beyond.any():
+        index = int(np.argmax(beyond))
+        _int64_label(array[index].item(), f"labels[{index}] = {array[index].item()!r}")
     return array.astype(np.int64)
 
 
-_INT64_LIMIT = 2.0 ** 63
+_INT64 = np.iinfo(np.int64)
+
+
+def _int64_label(label, shown: str):
+    """``label``, or a ``ValueError`` showing it as ``shown`` unless it fits in a 64-bit integer."""
+    if not _INT64.min <= label <= _INT64.max:
+        raise ValueError(f"{shown} does not fit in a 64-bit integer (-2**63 <= label < 2**63)")
+    return label
 
 
 def _validated_covariances(covariances, n: int) -> np.ndarray:
@@ -291,14 +304,46 @@ def _validated_covariances(covariances, n: int) -> np.ndarray:
     return array
 
 
-def _number(cell: str) -> float | None:
+_NAME = re.compile(r"[^\W\d][\w \-]*(\s*[(\[][^()\[\]]*[)\]])?")  # dx, d theta, dtheta (rad), s_0 [a.u.]
+
+
+def _is_name(cell: str) -> bool:
+    """Whether ``cell`` is a column name: not a number ("nan", "inf") and not a number with a typo ("O.5")."""
     try:
-        return float(cell)
+        float(cell)
     except ValueError:
-        return None
+        return _NAME.fullmatch(cell) is not None
+    return False
 
 
-def _read_csv(name: str, source, width: int | None = None) -> np.ndarray:
+def _real(cell: str) -> float:
+    """The finite real number written in ``cell``, or a ``ValueError`` saying why not."""
+    try:
+        number = float(cell)
+    except ValueError:
+        try:
+            complex(cell)
+        except ValueError:
+            raise ValueError(f"{cell!r} is not a number") from None
+        raise ValueError(f"{cell!r} is a complex number; only real numbers are read (an FFT's abs(), say)") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{cell!r} is not a finite number")
+    return number
+
+
+def _label(cell: str) -> int:
+    """The integer written in ``cell``, read exactly (no float in between), or a ``ValueError`` saying why not."""
+    try:
+        number = decimal.Decimal(cell)
+    except decimal.InvalidOperation:
+        raise ValueError(f"{cell!r} is not a number") from None
+    if not number.is_finite() or number != number.to_integral_value():
+        raise ValueError(f"{cell!r} is not a whole number")
+    return int(_int64_label(number, repr(cell)))
+
+
+def _read_csv(name: str, source, read_cell, width: int | None = None) -> list[list]:
+    """The rows of the CSV file ``source`` as lists of ``read_cell(cell)``; a ``ValueError`` names file and line."""
     path = Path(source)
     if not path.is_file():
         raise ValueError(f"{name}: no file at {path}")
@@ -306,23 +351,25 @@ def _read_csv(name: str, source, width: int | None = None) -> np.ndarray:
         text_lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: a spreadsheet's byte-order mark
     except UnicodeDecodeError as error:
         raise ValueError(f"{name}: {path} is not UTF-8 text ({error.reason} at byte {error.start})") from None
-    rows = []
+    header, rows = None, []
     for line_number, line in enumerate(text_lines, start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
         cells = [cell.strip() for cell in text.split(",")]
-        numbers = [_number(cell) for cell in cells]
-        if any(number is None for number in numbers):
-            if not rows and line_number == 1 and all(number is None for number in numbers):
-                continue  # a header line: names only (a row with a typo such as 3O is not one)
-            bad = next(cell for cell, number in zip(cells, numbers) if number is None)
-            raise ValueError(f"{name}: {path}:{line_number}: not a row of numbers: {bad!r} is not a number, in {text!r}")
-        rows.append(numbers)
+        if line_number == 1 and all(_is_name(cell) for cell in cells):
+            header = cells  # names only (a row with a typo such as 3O or O.5 is not one)
+            continue
+        try:
+            rows.append([read_cell(cell) for cell in cells])
+        except ValueError as error:
+            raise ValueError(f"{name}: {path}:{line_number}: not a row of numbers: {error}, in {text!r}") from None
         if width is not None and len(cells) != width:
             raise ValueError(f"{name}: {path}:{line_number}: expected {width} columns, got {len(cells)}")
         if len(rows[-1]) != len(rows[0]):
             raise ValueError(f"{name}: {path}:{line_number}: {len(rows[-1])} columns, earlier rows have {len(rows[0])}")
     if not rows:
         raise ValueError(f"{name}: {path} holds no rows")
-    return np.array(rows, dtype=float)
+    if header is not None and len(header) != len(rows[0]):
+        raise ValueError(f"{name}: {path}:1: the header names {len(header)} columns, the rows have {len(rows[0])}")
+    return rows

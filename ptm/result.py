@@ -20,12 +20,12 @@ PTMs, the chains' traces as an ArviZ ``InferenceData``.
 from __future__ import annotations
 
 import json
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
+from ._npz import read_npz
+from ._validation import finite_array
 from .dataset import atomic_write
 from .diagnostics import import_arviz
 from .partitions import canonical
@@ -55,18 +55,22 @@ class PTM:
 
     def __init__(self, partitions, probabilities, method: str, diagnostics=None, traces=None):
         partitions = np.asarray(partitions)
-        probabilities = np.asarray(probabilities, dtype=float)
+        probabilities = finite_array("PTM probabilities", probabilities)  # complex refused, not cast
         if (partitions.ndim != 2 or probabilities.ndim != 1 or partitions.shape[0] != probabilities.shape[0]
                 or partitions.shape[0] == 0 or partitions.shape[1] == 0):
             raise ValueError("a PTM needs a non-empty (P, N) array of partitions and P probabilities")
-        if not np.all(np.isfinite(probabilities)) or np.any(probabilities < 0) or probabilities.sum() <= 0:
+        if np.any(probabilities < 0) or not np.any(probabilities > 0):
             raise ValueError("PTM probabilities must be finite, non-negative and not all zero")
         partitions, label_rank = _canonical_rows(partitions)
         # Most probable first; ties in the order of the labels (lexicographically smallest first), so that
         # top() and map() do not depend on the order the partitions came in.
         order = np.lexsort((label_rank, -probabilities))
         self.partitions = partitions[order].astype(np.int16 if partitions.shape[1] < 32_000 else np.int32)
-        total = probabilities.sum()
+        with np.errstate(over="ignore"):
+            total = probabilities.sum()
+        if np.isinf(total):  # finite weights past the float range together (1e308 + 1e308): the largest becomes 1
+            probabilities = probabilities / probabilities.max()
+            total = probabilities.sum()
         # Normalised here, unless they sum to one to rounding already (a saved PTM loads to the bit: dividing by
         # such a sum again would move the last digits).
         normalised = abs(total - 1.0) <= len(probabilities) * np.finfo(float).eps
@@ -186,17 +190,10 @@ class PTM:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"no PTM file at {path}")
-        try:
-            loaded = np.load(path, allow_pickle=False)
-            if not isinstance(loaded, np.lib.npyio.NpzFile):
-                raise ValueError("it holds a single array (.npy), not the named arrays of a PTM (.npz)")
-            with loaded as archive:
-                missing = {"partitions", "probabilities", "method", "diagnostics"} - set(archive.files)
-                if missing:
-                    raise ValueError(f"it lacks {', '.join(sorted(missing))}")
-                contents = {name: archive[name] for name in archive.files}
-        except (OSError, ValueError, EOFError, KeyError, NotImplementedError, zipfile.BadZipFile, zlib.error) as error:
-            raise ValueError(f"{path} is not a readable PTM file ({type(error).__name__}: {error})") from None
+        contents = read_npz(path, "PTM")
+        missing = {"partitions", "probabilities", "method", "diagnostics"} - set(contents)
+        if missing:
+            raise ValueError(f"{path} is not a readable PTM file (it lacks {', '.join(sorted(missing))})")
         traces = {name[len("trace_"):]: value for name, value in contents.items() if name.startswith("trace_")}
         try:
             diagnostics = json.loads(str(contents["diagnostics"]))

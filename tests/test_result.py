@@ -51,3 +51,33 @@ def test_a_ptm_without_traces_is_refused_by_name():
     exact = ptm.exact_posterior(appearance_posterior(n=4))
     with pytest.raises(ValueError, match="method 'exact'.*no sampler traces"):
         exact.to_inference_data()
+
+
+@pytest.mark.parametrize("weights, expected", [
+    ([1e308, 1e308, 1e308], [1 / 3, 1 / 3, 1 / 3]),  # the sum overflowed: all were normalised to 0
+    ([1.7e308, 1e-300, 1.7e308], [0.5, 0.5, 0.0]),
+    ([1e308, 5e-324, 1e307], [1 / 1.1, 0.1 / 1.1, 0.0]),
+    ([5e-324, 1e-323, 1.5e-323], [1 / 2, 1 / 3, 1 / 6]),  # subnormal: the smallest positive floats
+    ([5e-324, 5e-324, 5e-324], [1 / 3, 1 / 3, 1 / 3]),
+])
+def test_huge_and_subnormal_weights_normalise(weights, expected):
+    result = ptm.PTM([[0, 0, 0], [0, 0, 1], [0, 1, 2]], weights, "test")  # most probable first
+    assert result.probabilities == pytest.approx(expected, rel=1e-12, abs=0)
+    assert result.probabilities.sum() == pytest.approx(1.0, rel=1e-15)
+
+
+def test_ordinary_weights_normalise_to_the_same_bits_as_before():
+    weights = np.array([3.0, 1.0, 2.5])
+    result = ptm.PTM([[0, 0, 0], [0, 0, 1], [0, 1, 2]], weights, "test")
+    np.testing.assert_array_equal(result.probabilities, np.sort(weights)[::-1] / weights.sum())
+
+
+def test_complex_probabilities_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="PTM probabilities must be real numbers"):
+        ptm.PTM([[0, 0], [0, 1]], [0.5 + 0.5j, 0.5], "test")  # the imaginary part was dropped with a ComplexWarning
+    path = ptm.PTM([[0, 0], [0, 1]], [0.5, 0.5], "exact").save(tmp_path / "result.npz")
+    with np.load(path) as archive:
+        contents = dict(archive)
+    np.savez(path, **{**contents, "probabilities": contents["probabilities"] * (1 + 1j)})
+    with pytest.raises(ValueError, match=rf"{path}: PTM probabilities must be real numbers"):
+        ptm.PTM.load(path)
