@@ -21,7 +21,7 @@ from .appearance_joint import JointAppearanceModel
 from .dataset import Dataset
 from .exact import exact_posterior
 from .gamma_poisson_prior import GammaPoissonPrior
-from .odometry import OdometryModel
+from .odometry import NoiseScalePrior, OdometryModel, noise_scale_posterior
 from .online import OnlineMapper
 from .partitions import Partition, bell, canonical
 from .posterior import Posterior
@@ -34,6 +34,7 @@ from .tie_normaliser import DeadReckonedTieNormaliser, TieNormaliser
 __all__ = [
     "Dataset", "PTM", "Partition", "PoissonPrior", "GammaPoissonPrior", "Posterior", "AppearanceModel", "JointAppearanceModel",
     "OdometryModel", "TieNormaliser", "DeadReckonedTieNormaliser", "OnlineMapper", "SamplerOptions", "mcmc",
+    "NoiseScalePrior", "noise_scale_posterior",
     "tempered_mcmc", "exact_posterior", "total_variation", "canonical", "bell",
     "diagnostics", "export", "features", "moves",
 ]

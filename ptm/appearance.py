@@ -42,8 +42,9 @@ from scipy import stats
 from scipy.special import digamma, gammaln
 
 from ._cache import BoundedCache
-from ._validation import count, finite_array, positive, positive_array
+from ._validation import count, finite_array, instance, positive, positive_array, share
 from .appearance_outliers import SHARE_BOUNDS, fit_outlier_model, outlier_log_evidence, outlier_predictive
+from .dataset import Dataset
 from .partitions import Partition
 
 __all__ = ["AppearanceModel", "IndependentStudentT", "calibration_groups", "inverse_gamma_from_mean_variance",
@@ -51,6 +52,9 @@ __all__ = ["AppearanceModel", "IndependentStudentT", "calibration_groups", "inve
            "predictive_pit"]
 
 EVIDENCE_FORMS = ("corrected", "paper_eq19")
+#: The hyperparameters kappa, alpha and beta lie in this range, and |mu| below its top, so that the evidence's
+#: products and squares stay floats (alpha = 1.7e308 gave NaN, kappa = 5e-324 probability 0 everywhere).
+HYPERPARAMETER_RANGE = (1e-150, 1e150)
 
 
 def inverse_gamma_from_mean_variance(mean: float, variance: float) -> tuple[float, float]:
@@ -88,16 +92,18 @@ class AppearanceModel:
         self.mu = finite_array("mu", mu)
         if self.mu.ndim > 1:
             raise ValueError(f"mu must be a scalar or a 1-D array, got shape {self.mu.shape}")
-        self.kappa = positive_array("kappa", kappa)
-        self.alpha = positive_array("alpha", alpha)
-        self.beta = positive_array("beta", beta)
+        if np.any(np.abs(self.mu) > HYPERPARAMETER_RANGE[1]):
+            raise ValueError(f"mu must lie within +-{HYPERPARAMETER_RANGE[1]:g}, got {mu!r}")
+        self.kappa = positive_array("kappa", kappa, within=HYPERPARAMETER_RANGE)
+        self.alpha = positive_array("alpha", alpha, within=HYPERPARAMETER_RANGE)
+        self.beta = positive_array("beta", beta, within=HYPERPARAMETER_RANGE)
         if evidence not in EVIDENCE_FORMS:
             raise ValueError(f"evidence must be one of {EVIDENCE_FORMS}, got {evidence!r}")
         self.evidence = evidence
-        self.outlier_share = float(outlier_share)
-        if not 0.0 <= self.outlier_share < 1.0:
+        self.outlier_share = share("outlier_share", outlier_share)
+        if self.outlier_share == 1.0:
             raise ValueError(f"outlier_share must lie in [0, 1), got {outlier_share!r}")
-        self.outlier_scale = positive("outlier_scale", outlier_scale)
+        self.outlier_scale = positive("outlier_scale", outlier_scale, (0.0, HYPERPARAMETER_RANGE[1]))
         if self.outlier_share > 0.0 and self.outlier_scale <= 1.0:
             raise ValueError(f"outlier_scale must exceed 1 when outlier_share > 0, got {outlier_scale!r}")
         self.max_outliers = count("max_outliers", max_outliers, 1)
@@ -147,7 +153,7 @@ class AppearanceModel:
         evidence, and if that fails too the fit raises ``RuntimeError`` naming
         the component and the optimiser's messages.
         """
-        max_alpha = positive("max_alpha", max_alpha)
+        max_alpha = positive("max_alpha", max_alpha, HYPERPARAMETER_RANGE)
         if evidence not in EVIDENCE_FORMS:
             raise ValueError(f"evidence must be one of {EVIDENCE_FORMS}, got {evidence!r}")
         groups = calibration_groups(datasets)
@@ -382,15 +388,20 @@ def _held_out_and_given(term, held_out, given) -> tuple[int, tuple]:
 
 
 def calibration_groups(datasets) -> list[np.ndarray]:
-    """The signatures of each ground-truth place of labelled calibration datasets, one (n, K) array per place.
+    """The signatures of each ground-truth place of labelled calibration datasets (one :class:`ptm.Dataset`
+    or any iterable of them), one (n, K) array per place.
 
-    Refuses (``ValueError``, naming the problem) an empty list, a dataset
-    without signatures or labels, datasets of different K, a set without a
-    single revisit, and a component that
+    Refuses (``TypeError``) anything but a Dataset or an iterable of Datasets, and (``ValueError``, naming
+    the problem) an empty list, a dataset without signatures or labels, datasets of different K, a set
+    without a single revisit, and a component that
     is constant over the whole set (its variance would be fitted as zero: a
     model certain that every visit repeats that value exactly).
     """
-    datasets = [datasets] if not isinstance(datasets, (list, tuple)) else list(datasets)
+    try:
+        runs = iter([datasets] if isinstance(datasets, Dataset) else datasets)
+    except TypeError:
+        raise TypeError(f"datasets must be a ptm.Dataset or an iterable of them, got {datasets!r:.60}") from None
+    datasets = [instance(f"datasets[{index}]", dataset, Dataset) for index, dataset in enumerate(runs)]
     if not datasets:
         raise ValueError("fit needs at least one labelled dataset")
     groups = []

@@ -45,8 +45,8 @@ from scipy import stats
 from scipy.optimize import minimize
 from scipy.special import digamma, multigammaln
 
-from ._validation import finite_array, positive
-from .appearance import calibration_groups
+from ._validation import finite_array, number, positive
+from .appearance import HYPERPARAMETER_RANGE, calibration_groups
 from .partitions import Partition
 
 __all__ = ["JointAppearanceModel", "JointAppearanceTerm", "MultivariateStudentT", "PlaceStatistics", "FitParametrisation"]
@@ -88,15 +88,15 @@ class JointAppearanceModel:
             mu = np.full(width, float(mu))
         if mu.shape != (width,):
             raise ValueError(f"mu must have length K={width} (the size of psi), got shape {mu.shape}")
-        try:
-            nu_value = float(nu)
-        except (TypeError, ValueError):
-            nu_value = math.nan
-        if not math.isfinite(nu_value) or nu_value <= width - 1:
-            raise ValueError(f"nu must be a finite number > K - 1 = {width - 1}, got {nu!r}")
+        if np.any(np.abs(mu) > HYPERPARAMETER_RANGE[1]):
+            raise ValueError(f"mu must lie within +-{HYPERPARAMETER_RANGE[1]:g}, got {mu!r}")
+        nu_value = number("nu", nu)
+        if not width - 1 < nu_value <= HYPERPARAMETER_RANGE[1]:
+            raise ValueError(f"nu must be a finite number > K - 1 = {width - 1} and at most "
+                             f"{HYPERPARAMETER_RANGE[1]:g}, got {nu!r}")
         nu = nu_value
         self.mu = mu
-        self.kappa = positive("kappa", kappa)
+        self.kappa = positive("kappa", kappa, HYPERPARAMETER_RANGE)
         self.nu = nu
         self.psi = 0.5 * (psi + psi.T)
         self.shrinkage: float | None = None
@@ -163,7 +163,7 @@ class JointAppearanceModel:
         RuntimeError
             The optimiser did not converge (after one restart from where it stopped).
         """
-        max_dof = positive("max_dof", max_dof)
+        max_dof = positive("max_dof", max_dof, HYPERPARAMETER_RANGE)
         groups = calibration_groups(datasets)
         return _fit(cls, groups, shrinkage, max_dof)
 

@@ -68,7 +68,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from ._threads import blas_threads, checked_blas_threads
-from ._validation import count, finite_array
+from ._validation import count, finite_array, seed_sequence, share
 from .dataset import Dataset
 from .moves import MoveMixture, TrailingReallocation, default_moves, initial_state
 from .partitions import Partition
@@ -127,19 +127,22 @@ class OnlineMapper:
         elif callable(prior):
             self._prior_of = prior
         else:
-            raise ValueError(f"prior must have log_prob(n, m) or be a callable n -> prior, got {prior!r}")
-        self.models = list(models)
+            raise TypeError(f"prior must have log_prob(n, m) or be a callable n -> prior, got {prior!r}")
+        try:
+            self.models = list(models)
+        except TypeError:
+            raise TypeError(f"models must be an iterable of models, got {models!r:.60}") from None
         for model in self.models:
             if not hasattr(model, "bind"):
-                raise ValueError(f"{model!r} is not a model: the online mapper binds each model to the detections "
-                                 "so far (model.bind(dataset)), so it needs unbound models")
+                raise TypeError(f"{model!r} is not a model: the online mapper binds each model to the detections "
+                                "so far (model.bind(dataset)), so it needs unbound models")
         self.particles = count("particles", particles, minimum=1)
         self.rejuvenation_steps = count("rejuvenation_steps", rejuvenation_steps, minimum=0)
         self.reallocation_window = count("reallocation_window", reallocation_window, minimum=0)
-        self.resample_below = _share("resample_below", resample_below)
-        self.screen = _share("screen", screen)
+        self.resample_below = share("resample_below", resample_below)
+        self.screen = share("screen", screen)
         self.blas_threads = checked_blas_threads(blas_threads)
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(seed_sequence("seed", seed))
         self.posterior: Posterior | None = None
         self._signatures: np.ndarray | None = None  # (n, K), or None for a run without appearance
         self._odometry: np.ndarray | None = None  # (n - 1, 3), or None for a run without odometry
@@ -457,13 +460,3 @@ def _effective_sample_size(log_weights) -> float:
     """1 / sum_p W_p^2 of the normalised weights."""
     weights = np.exp(log_weights - logsumexp(log_weights))
     return float(1.0 / np.sum(weights * weights))
-
-
-def _share(name: str, value) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None
-    if not 0.0 <= number <= 1.0:
-        raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
-    return number

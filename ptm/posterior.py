@@ -11,7 +11,9 @@ the odometry likelihood, are evaluated on whole partitions. A decomposable
 term may complete a global one (``completes_global_term``: the normaliser of
 the odometry ties, ``ptm.TieNormaliser``); what scores the cheap terms in
 place of the whole posterior reads :meth:`Posterior.standalone_block_score`,
-which leaves such terms out.
+which leaves such terms out. A term may check the others it is combined with
+(``check_terms(terms)``, called once here): the odometry term with a noise-scale
+prior refuses a tie normaliser it was not told of, or the lack of one.
 
 A global term may offer a *screen* (``screen(posterior)``): a cheap prediction
 of how a move changes the global terms, from the map of the current partition
@@ -58,6 +60,9 @@ class Posterior:
         for term in self.terms:
             if not hasattr(term, "log_likelihood"):
                 raise ValueError(f"{term!r} has no log_likelihood(partition) method")
+        for term in self.terms:
+            if hasattr(term, "check_terms"):  # a term may refuse the terms it is combined with
+                term.check_terms(self.terms)
         self.block_terms = [term for term in self.terms if hasattr(term, "block_log_likelihood")]
         self.global_terms = [term for term in self.terms if not hasattr(term, "block_log_likelihood")]
         self.completing_terms = [term for term in self.block_terms if getattr(term, "completes_global_term", False)]

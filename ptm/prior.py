@@ -8,8 +8,9 @@ Poisson(rate) prior on L (conditioned on L >= M),
 
 which depends on (N, M) only and is evaluated in log space, as
 M log rate + log E[(K + M)^-N] with K = L - M ~ Poisson(rate): to about 1e-14
-and in milliseconds for any rate up to 1e15 and beyond. Summed over all
-partitions of N detections it equals 1 - exp(-rate) = P(L >= 1).
+and in milliseconds for any rate in ``RATE_RANGE`` = [1e-300, 1e15] (others are
+refused: beyond, its terms lose their accuracy, and the value becomes NaN).
+Summed over all partitions of N detections it equals 1 - exp(-rate) = P(L >= 1).
 
 The rate counts landmarks, visited or not; the number of *visited* places,
 M, is smaller. With L landmarks, N detections occupy on average
@@ -37,7 +38,11 @@ from scipy.special import digamma, gammaln, logsumexp
 
 from ._validation import positive
 
-__all__ = ["PoissonPrior"]
+__all__ = ["RATE_RANGE", "PoissonPrior"]
+
+#: The rates allowed: the sum's terms keep their accuracy up to 1e15 (at 1e16 the value was NaN, at 1e50 it hung),
+#: and below 1e-300 log rate and 1 / rate leave the floats (a subnormal rate gave NaN).
+RATE_RANGE = (1e-300, 1e15)
 
 _CHUNK = 256
 _DEPTH = 60.0  # [nats] each part of the sum is taken until its terms are this far below its top
@@ -49,7 +54,7 @@ class PoissonPrior:
     """Prior P(T) from a Poisson(``rate``) number of landmarks in the world."""
 
     def __init__(self, rate: float):
-        self.rate = positive("rate", rate)
+        self.rate = positive("rate", rate, RATE_RANGE)
         self._log_prob = lru_cache(maxsize=None)(self._compute)
 
     def log_prob(self, n: int, m: int) -> float:

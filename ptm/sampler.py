@@ -26,14 +26,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import count, share
+from ._validation import count, flag, instance, seed_sequence, share
 from .diagnostics import chains_agree
 from .moves import MoveMixture, initial_state, move_set
 from .moves.sets import checked_moves
+from .posterior import Posterior
 from .recorder import SampleRecorder
 from .starts import chain_start, checked_start
 
-__all__ = ["SamplerOptions", "mcmc", "run_chains", "sampler_diagnostics"]
+__all__ = ["MAX_CHAIN_STEPS", "MAX_KEPT_SAMPLES", "SamplerOptions", "checked_run", "mcmc", "run_chains",
+           "sampler_diagnostics"]
+
+#: The most samples one run may keep, over all its chains and doublings: the traces hold 12 bytes a sample,
+#: so this is 12 GB (a larger request fails with ``ValueError`` before sampling, not with a MemoryError).
+MAX_KEPT_SAMPLES = 10**9
+#: The most steps one chain may take, burn-in, thinning and doublings included: even at a microsecond a step,
+#: more would run for weeks.
+MAX_CHAIN_STEPS = 10**12
 
 
 @dataclass(frozen=True)
@@ -81,10 +90,8 @@ class SamplerOptions:
             "moves": checked_moves(self.moves),
             "unscreened_share": share("unscreened_share", self.unscreened_share),
             "max_doublings": count("max_doublings", self.max_doublings, 0),
+            "delayed_acceptance": flag("delayed_acceptance", self.delayed_acceptance),
         }
-        if not isinstance(self.delayed_acceptance, (bool, np.bool_)):
-            raise TypeError(f"delayed_acceptance must be True or False, got {self.delayed_acceptance!r}")
-        fields["delayed_acceptance"] = bool(self.delayed_acceptance)
         for name, value in fields.items():
             object.__setattr__(self, name, value)
 
@@ -101,12 +108,12 @@ def mcmc(posterior, n_samples: int, *, seed=None, **options):
     :class:`SamplerOptions`. ``diagnostics`` holds, beside the convergence diagnostics, the move set run
     (``moves``), the burn-in, the acceptance rates and the screening's tallies.
     """
-    n_samples = count("n_samples", n_samples, 1)
     options = SamplerOptions(**options)
+    n_samples = checked_run(posterior, n_samples, options)
+    root = seed_sequence("seed", seed)
     burn_in = options.burn_in_for(n_samples)
     moves = move_set(options.moves, posterior)
     mixture = MoveMixture(moves.moves, options.delayed_acceptance, moves.screen, options.unscreened_share)
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     started = time.perf_counter()
     runners = []
     for chain, chain_seed in enumerate(root.spawn(options.chains)):
@@ -121,6 +128,34 @@ def mcmc(posterior, n_samples: int, *, seed=None, **options):
                    **mixture.diagnostics()}
     diagnostics.update(sampler_diagnostics(posterior, moves, options, burn_in))
     return recorder.result("mcmc", diagnostics)
+
+
+def checked_run(posterior, n_samples, options: SamplerOptions) -> int:
+    """``n_samples`` as an int, after checking the arguments of a run of :func:`mcmc` or
+    :func:`ptm.tempered_mcmc`: ``TypeError`` unless ``posterior`` is a :class:`ptm.Posterior` and ``n_samples``
+    a whole number, ``ValueError`` (naming the arguments) where the run would keep more than
+    ``MAX_KEPT_SAMPLES`` samples or take more than ``MAX_CHAIN_STEPS`` steps a chain if every doubling
+    were made."""
+    instance("posterior", posterior, Posterior)
+    n_samples = count("n_samples", n_samples, 1)
+    doublings = min(options.max_doublings, 64)  # beyond 64, 2 ** doublings exceeds both limits anyway
+    kept = options.chains * n_samples << doublings
+    if kept > MAX_KEPT_SAMPLES:
+        raise ValueError(f"n_samples={_amount(n_samples)} with chains={_amount(options.chains)} and max_doublings="
+                         f"{_amount(options.max_doublings)} may keep {_amount(kept)} samples, more than "
+                         f"MAX_KEPT_SAMPLES = {MAX_KEPT_SAMPLES:,} (12 bytes each)")
+    burn_in = options.burn_in_for(n_samples)
+    steps = burn_in + (n_samples << doublings) * options.thin
+    if steps > MAX_CHAIN_STEPS:
+        raise ValueError(f"n_samples={_amount(n_samples)} with burn_in={_amount(burn_in)}, thin="
+                         f"{_amount(options.thin)} and max_doublings={_amount(options.max_doublings)} may take "
+                         f"{_amount(steps)} steps a chain, more than MAX_CHAIN_STEPS = {MAX_CHAIN_STEPS:,}")
+    return n_samples
+
+
+def _amount(value: int) -> str:
+    """A count for a message: in full, or its order of magnitude where it is huge (1e300 has 301 digits)."""
+    return f"{value:,}" if value < 10**15 else f"about 1e{len(str(value)) - 1}"
 
 
 class _Chain:

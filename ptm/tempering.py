@@ -28,9 +28,9 @@ import time
 
 import numpy as np
 
-from ._validation import count
+from ._validation import count, finite_array, seed_sequence
 from .moves import MoveMixture, initial_state, move_set
-from .sampler import SamplerOptions, run_chains, sampler_diagnostics
+from .sampler import SamplerOptions, checked_run, run_chains, sampler_diagnostics
 from .starts import chain_start
 
 __all__ = ["tempered_mcmc"]
@@ -46,13 +46,10 @@ def tempered_mcmc(posterior, n_samples: int, *, seed=None, temperatures=(1.0, 0.
     beta = 1 replicas give the convergence diagnostics; one ladder draws from ``seed`` itself, several from its
     children. Every replica starts from its own start and runs the same move set.
     """
-    n_samples = count("n_samples", n_samples, 1)
-    swap_interval = count("swap_interval", swap_interval, 1)
     options = SamplerOptions(**options)
-    try:
-        betas = np.asarray(temperatures, dtype=float)
-    except (TypeError, ValueError):
-        betas = np.array([])
+    n_samples = checked_run(posterior, n_samples, options)
+    swap_interval = count("swap_interval", swap_interval, 1)
+    betas = finite_array("temperatures", temperatures)
     if betas.ndim != 1 or betas.size < 2 or betas[0] != 1.0 or np.any(np.diff(betas) >= 0) or betas[-1] <= 0:
         raise ValueError(f"temperatures must start at 1.0 and decrease strictly to a positive value, "
                          f"got {temperatures!r}")
@@ -60,7 +57,7 @@ def tempered_mcmc(posterior, n_samples: int, *, seed=None, temperatures=(1.0, 0.
     moves = move_set(options.moves, posterior)
     mixtures = [MoveMixture(moves.moves, options.delayed_acceptance, moves.screen, options.unscreened_share)
                 for _ in betas]
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    root = seed_sequence("seed", seed)
     ladder_seeds = [root] if options.chains == 1 else root.spawn(options.chains)
     swaps = _SwapCounts(betas.size - 1)
 

@@ -308,7 +308,7 @@ def test_degenerate_calibration_sets_are_refused_by_name():
     ("psi must be a square", dict(psi=[1.0, 1.0])),
     ("psi contains a non-finite", dict(psi=[[1.0, np.inf], [np.inf, 1.0]])),
     ("nu must be", dict(nu=0.9)),
-    ("nu must be", dict(nu="many")),
+    ("nu must be", dict(nu=float("inf"))),
     ("kappa", dict(kappa=0.0)),
     ("mu contains a non-finite", dict(mu=[np.nan, 0.0])),
     ("mu must have length K=2", dict(mu=[0.0, 0.0, 0.0])),

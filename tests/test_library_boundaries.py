@@ -147,3 +147,121 @@ def test_map_ties_go_to_the_lexicographically_smallest_labels_as_in_scoring(rows
     assert result.top(2) == [((0, 0, 0), 0.5), ((0, 1, 2), 0.5)]
     assert scoring.score(result, (0, 0, 0))["map_correct"]
     assert scoring.score(dict(reversed(result.top(2))), (0, 0, 0))["map_correct"]
+
+
+# -- issue 47: the library's validators (ValueError for a bad value, TypeError for a wrong type, argument named) --
+
+SQUARE = np.tile([2.0, 0.0, np.pi / 2], (4, 1))  # a 2 m square, back at the start
+
+
+def square_covariances(row: int, scale: float) -> np.ndarray:
+    covariances = np.tile(np.diag([0.01, 0.01, 0.0025]), (4, 1, 1))
+    covariances[row] = scale * np.eye(3)
+    return covariances
+
+
+@pytest.mark.parametrize("row, scale", [(0, 1e-100), (2, 1e-300), (3, 1e-30), (1, 1e50)])
+def test_an_absurd_odometry_covariance_is_refused_naming_the_row(row, scale):
+    dataset = ptm.Dataset(odometry=SQUARE, odometry_cov=square_covariances(row, scale))
+    # was bound: at 1e-100 seven topologies at 1/7, the truth absent; at 1e-300 a log-probability of +1.5e253
+    with pytest.raises(ValueError, match=rf"odometry_cov\[{row}\] has standard deviations .* STD_RANGE"):
+        ptm.OdometryModel().bind(dataset)
+
+
+def test_standard_deviations_far_below_any_odometry_but_above_its_rounding_are_kept_and_exact():
+    def closing_the_loop(scale):  # log P(O | loop closed) - log P(O | all distinct): the same at any small scale
+        dataset = ptm.Dataset(odometry=SQUARE + [0.03, -0.02, 0.01], odometry_cov=np.tile(scale * np.eye(3), (4, 1, 1)))
+        term = ptm.OdometryModel(sigma_topology=0.1, penalty_radius=1.0).bind(dataset)
+        return term.log_likelihood([0, 1, 2, 3, 0]) - term.log_likelihood([0, 1, 2, 3, 4])
+
+    assert closing_the_loop(1e-20) == pytest.approx(closing_the_loop(1e-12), abs=0.01)  # 1e-10 m: the limit is 6e-12
+
+
+@pytest.mark.parametrize("field, value", [("sigma_xy", 1e-200), ("sigma_theta", 1e-13), ("sigma_topology", 1e-13),
+                                          ("sigma_topology", 1e8)])
+def test_model_deviations_outside_the_range_are_refused_naming_them(field, value):
+    with pytest.raises(ValueError, match=rf"{field} = .* STD_RANGE"):
+        ptm.OdometryModel(**{field: value}).bind(ptm.Dataset(odometry=SQUARE))
+
+
+def tiny_posterior():
+    return ptm.Posterior(ptm.Dataset(signatures=[[0.3, 0.1], [0.4, 0.05], [0.31, 0.11]]), ptm.PoissonPrior(2.0),
+                         [ptm.AppearanceModel(0.3, 0.05, 3.0, 2e-4)])
+
+
+@pytest.mark.parametrize("call, error, name", [
+    (lambda p: ptm.exact_posterior(p, max_n="12"), TypeError, "max_n"),  # was TypeError: '>' not supported ...
+    (lambda p: ptm.exact_posterior(None), TypeError, "posterior"),  # was AttributeError
+    (lambda p: ptm.exact_posterior(p, skip="no"), TypeError, "skip"),  # was taken as True
+    (lambda p: ptm.exact_posterior(p, max_global_evaluations=-1), ValueError, "max_global_evaluations"),
+    (lambda p: ptm.mcmc(None, 10), TypeError, "posterior"),
+    (lambda p: ptm.mcmc(p, 10, seed="x"), TypeError, "seed"),
+    (lambda p: ptm.mcmc(p, 10, seed=-1), ValueError, "seed"),
+    (lambda p: ptm.mcmc(p, 10 ** 300), ValueError, "n_samples"),  # was "Maximum allowed dimension exceeded"
+    (lambda p: ptm.mcmc(p, 10, chains=10 ** 300), ValueError, "chains"),  # was OverflowError
+    (lambda p: ptm.tempered_mcmc(None, 10), TypeError, "posterior"),
+    (lambda p: ptm.tempered_mcmc(p, 10, temperatures="hot"), TypeError, "temperatures"),
+    (lambda p: ptm.tempered_mcmc(p, 10, seed=1.5), TypeError, "seed"),
+    (lambda p: ptm.OdometryModel(sigma_xy=1e300), ValueError, "sigma_xy"),  # was OverflowError on binding
+    (lambda p: ptm.OdometryModel(sigma_xy="0.1"), TypeError, "sigma_xy"),
+    (lambda p: ptm.OdometryModel(n_importance=float("inf")), ValueError, "n_importance"),  # was OverflowError
+    (lambda p: ptm.OdometryModel(n_importance=None), TypeError, "n_importance"),
+    (lambda p: ptm.OdometryModel(max_penalty=1e308), ValueError, "max_penalty"),  # was "array must not contain infs"
+    (lambda p: ptm.OdometryModel(seed="x"), TypeError, "seed"),
+    (lambda p: ptm.OdometryModel(sparse_above=float("inf")), ValueError, "sparse_above"),
+    (lambda p: ptm.OdometryModel(cache_size="x"), TypeError, "cache_size"),
+    (lambda p: ptm.PoissonPrior("2"), TypeError, "rate"),
+    (lambda p: ptm.PoissonPrior(None), TypeError, "rate"),
+    (lambda p: ptm.PoissonPrior(1e300), ValueError, "rate"),  # was accepted; log_prob then hung
+    (lambda p: ptm.AppearanceModel.fit(3), TypeError, "datasets"),
+    (lambda p: ptm.AppearanceModel.fit([3]), TypeError, r"datasets\[0\]"),
+    (lambda p: ptm.JointAppearanceModel.fit(None), TypeError, "datasets"),
+    (lambda p: ptm.AppearanceModel(None, 1.0, 3.0, 1.0), TypeError, "mu"),
+    (lambda p: ptm.AppearanceModel(0.0, 1.0, 1.7e308, 1.0), ValueError, "alpha"),  # was NaN from the term
+    (lambda p: ptm.AppearanceModel(0.0, 1.0, 3.0, 1.0, outlier_share="x"), TypeError, "outlier_share"),
+    (lambda p: ptm.JointAppearanceModel([0.0], 1.0, "many", [[1.0]]), TypeError, "nu"),
+    (lambda p: ptm.OnlineMapper(ptm.PoissonPrior(2.0), [], screen="often"), TypeError, "screen"),
+    (lambda p: ptm.OnlineMapper(ptm.PoissonPrior(2.0), 3), TypeError, "models"),
+    (lambda p: ptm.OnlineMapper(ptm.PoissonPrior(2.0), [], seed=-1), ValueError, "seed"),
+])
+def test_a_library_argument_of_the_wrong_type_or_value_is_refused_by_name(call, error, name):
+    with pytest.raises(error, match=name):
+        call(tiny_posterior())
+
+
+def labelled_runs():
+    rng = np.random.default_rng(3)
+    places = rng.normal(0.0, 1.0, (3, 2))
+    return [ptm.Dataset(signatures=places[labels] + rng.normal(0.0, 0.1, (6, 2)), labels=labels)
+            for labels in (np.array([0, 1, 0, 2, 1, 2]), np.array([2, 0, 2, 1, 0, 1]))]
+
+
+@pytest.mark.parametrize("model", [ptm.AppearanceModel, ptm.JointAppearanceModel])
+def test_a_fit_takes_any_iterable_of_datasets(model):
+    expected = repr(model.fit(labelled_runs()))
+    assert repr(model.fit(iter(labelled_runs()))) == expected  # was AttributeError: no attribute 'signatures'
+    assert repr(model.fit(run for run in labelled_runs())) == expected
+
+
+def refuse_enumeration(posterior, monkeypatch):
+    """The posterior's set scores raise: a test that reached the enumeration fails at once instead of running it."""
+    def enumerating(block):
+        raise AssertionError("the enumeration started")
+
+    monkeypatch.setattr(posterior, "block_score", enumerating)
+    return posterior
+
+
+def test_an_exact_enumeration_past_the_default_limit_warns_with_its_estimate_before_it_starts(monkeypatch):
+    posterior = refuse_enumeration(ptm.Posterior(ptm.Dataset(labels=np.zeros(13, dtype=int)), ptm.PoissonPrior(2.0)),
+                                   monkeypatch)
+    with pytest.warns(UserWarning, match=r"N=13 detections visits 27,644,437 partitions: about 5 min and 0.581 GB"):
+        with pytest.raises(AssertionError, match="the enumeration started"):  # was: minutes without a word
+            ptm.exact_posterior(posterior, max_n=13)
+
+
+def test_an_exact_enumeration_beyond_max_n_limit_is_refused_whatever_max_n_says(monkeypatch):
+    posterior = refuse_enumeration(ptm.Posterior(ptm.Dataset(labels=np.zeros(15, dtype=int)), ptm.PoissonPrior(2.0)),
+                                   monkeypatch)
+    with pytest.raises(ValueError, match=r"1,382,958,545 partitions, beyond MAX_N = 14 .* about 3.84 h and 31.8 GB"):
+        ptm.exact_posterior(posterior, max_n=20)

@@ -21,12 +21,16 @@ One module per concept:
 
 * :mod:`~ptm.odometry.model` -- :class:`OdometryModel`, the parameters; ``bind(dataset)`` gives the term;
 * :mod:`~ptm.odometry.term` -- :class:`OdometryTerm`, the memoised value, its diagnostics and its screen;
+* :mod:`~ptm.odometry.covariance_range` -- the standard deviations it can compute with, relative to the
+  odometry's scale;
 * :mod:`~ptm.odometry.laplace` -- which minimum is P* (step 1);
 * :mod:`~ptm.odometry.growth` -- a term one detection longer starts its fits from the shorter run's modes;
 * :mod:`~ptm.odometry.importance` -- the estimator and its Monte-Carlo error (steps 2-3);
 * :mod:`~ptm.odometry.increments` -- where the draws are placed;
 * :mod:`~ptm.odometry.proposal` -- the penalised mode and the mixture proposal;
 * :mod:`~ptm.odometry.penalty` -- the penalty Pen (eq. 11-12);
+* :mod:`~ptm.odometry.noise_scale` -- the prior of one scale of every covariance, integrated out with the
+  topology where the model has one, and its posterior given a PTM;
 * :mod:`~ptm.odometry.surrogate` -- :class:`OdometrySurrogate`, the screen that predicts a move's change of
   the odometry terms from the map estimate of the current partition (docs/model.md §3.4).
 
@@ -44,6 +48,7 @@ One module per concept:
 from .importance import OdometryEvaluation
 from .increments import compose_linearised_increments, linearised_increment_offsets
 from .model import OdometryModel
+from .noise_scale import NoiseScalePosterior, NoiseScalePrior, noise_scale_posterior
 from .penalty import landmark_penalty
 from .proposal import PenalisedMode
 from .surrogate import ConditionedMap, MapEstimate, OdometrySurrogate
@@ -51,4 +56,4 @@ from .term import OdometryTerm
 
 __all__ = ["OdometryModel", "OdometryTerm", "OdometryEvaluation", "OdometrySurrogate", "MapEstimate",
            "ConditionedMap", "PenalisedMode", "landmark_penalty", "compose_linearised_increments",
-           "linearised_increment_offsets"]
+           "linearised_increment_offsets", "NoiseScalePrior", "NoiseScalePosterior", "noise_scale_posterior"]

@@ -29,6 +29,7 @@ deterministic function of the partition and the MCMC target a fixed distribution
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -86,6 +87,15 @@ class ImportanceSampler:
         chunk_size = math.ceil(n_importance / chunks)
         self.sample_chunks = [slice(begin, begin + chunk_size) for begin in range(0, n_importance, chunk_size)]
         self.penalty = DetectionPenalty(n, penalty_radius, max_penalty)
+
+    def on(self, graph: PoseGraph) -> "ImportanceSampler":
+        """This sampler, its common random numbers and penalty unchanged, for another pose graph of the same
+        odometry: the graph whose covariances are scaled (docs/model.md §3.3, "Noise scale")."""
+        if (graph.n, graph.dimension) != (self.graph.n, self.graph.dimension):
+            raise ValueError(f"a graph of {graph.n} detections for a sampler of {self.graph.n}")
+        sampler = copy.copy(self)
+        sampler.graph = graph
+        return sampler
 
     def estimate(self, fit: LaplaceFit, labels) -> OdometryEvaluation:
         """The estimate of log P(O | T) for the partition ``labels`` (an (N,) array) with the Laplace fit

@@ -13,7 +13,8 @@ one dataset then fits each partition once.
 Besides its value the term offers the screen of a posterior it is part of (:meth:`OdometryTerm.screen`, an
 :class:`~ptm.odometry.surrogate.OdometrySurrogate`), the optimised map of a partition
 (:meth:`OdometryTerm.mode_poses`) and the term of the run one detection longer (:meth:`OdometryTerm.grown`,
-:mod:`ptm.odometry.growth`).
+:mod:`ptm.odometry.growth`). With a ``noise_scale_prior`` the value is integrated over the noise scale
+(:mod:`ptm.odometry.noise_scale`; docs/model.md §3.3, "Noise scale").
 
     >>> from ptm import Dataset, OdometryModel
     >>> steps = np.tile([2.0, 0.0, np.pi / 2], (4, 1))                     # a 2 m square, back at the start
@@ -26,6 +27,7 @@ Besides its value the term offers the screen of a posterior it is part of (:meth
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -34,9 +36,11 @@ import numpy as np
 from .._cache import BoundedCache
 from ..partitions import Partition
 from ..pose_graph import LaplaceFit, PoseGraph, odometry_sqrt_information, poses_from_vector
+from .covariance_range import step_covariances
 from .growth import ShorterRun, extends_by_one
 from .importance import ImportanceSampler, OdometryEvaluation
 from .laplace import LaplaceFitter
+from .noise_scale import NoiseScalePrior
 from .surrogate import OdometrySurrogate
 
 __all__ = ["OdometryTerm"]
@@ -74,12 +78,7 @@ class OdometryTerm:
         self.model = model
         self.dataset = dataset  # the dataset bound (rebind binds other models to it)
         self.n = dataset.n
-        steps = self.n - 1
-        if dataset.odometry_cov is not None:
-            covariances = dataset.odometry_cov
-        else:
-            variances = [model.sigma_xy**2, model.sigma_xy**2, model.sigma_theta**2]
-            covariances = np.broadcast_to(np.diag(variances), (steps, 3, 3))
+        covariances = step_covariances(model, dataset)
         self.graph = PoseGraph(dataset.odometry, odometry_sqrt_information(covariances), model.sigma_topology,
                                sparse_above=model.sparse_above)
         self.dimension = self.graph.dimension
@@ -88,6 +87,8 @@ class OdometryTerm:
                                          model.max_penalty)
         self._fits: BoundedCache | None = None  # Laplace fits by partition, shared with rebound terms (rebind)
         self._cache = BoundedCache(model.cache_size)
+        self.noise_scale_prior = model.noise_scale_prior
+        self._scale_conditionals = BoundedCache(model.cache_size)  # s given T, kept by the evaluations
         self._modes = BoundedCache(max(1, MODE_MEMO_BYTES // (8 * max(self.dimension, 1))))
         self._converged_modes = BoundedCache(self._modes.maxsize)  # the same vectors, of converged fits only
         self._evaluations = 0
@@ -220,10 +221,56 @@ class OdometryTerm:
         The ties and the penalty are >= 0, so exp(-E_T - Pen_T) <= exp(-E_all-distinct) at every P, and
         the all-distinct energy is a chain of independent Gaussian steps (docs/model.md §3.3):
         sum_k 1/2 log det(2 pi Sigma_k). :func:`ptm.exact_posterior` uses it to skip partitions whose
-        cheap score leaves them no chance of mattering.
+        cheap score leaves them no chance of mattering. With a ``noise_scale_prior`` and normalised ties,
+        s^-(N-M) may exceed 1, so the bound grows by the largest log int IG(s) s^-k ds over k < N.
         """
         _, log_det_whitening = np.linalg.slogdet(self.graph.sqrt_information)  # log |det U_k| = -1/2 log det Sigma_k
-        return float(1.5 * (self.n - 1) * math.log(2.0 * math.pi) - log_det_whitening.sum())
+        bound = float(1.5 * (self.n - 1) * math.log(2.0 * math.pi) - log_det_whitening.sum())
+        if self.noise_scale_prior is not None and self.model.normalised_ties:
+            # det H >= det of the rows' information and E* >= 0, but s^-(N-M) may exceed 1 where s < 1
+            bound += self.noise_scale_prior.largest_log_marginal_gain(self.n - 1)
+        return bound
+
+    def noise_scale_conditional(self, partition) -> NoiseScalePrior:
+        """The noise scale given ``partition``: IG(a + k, b + E*) with E* the energy of its Laplace mode at scale 1
+        and k = N - M with normalised ties, else 0 (:mod:`ptm.odometry.noise_scale`). Kept from the partition's
+        evaluation, else fitted now. ``ValueError`` without a ``noise_scale_prior`` or where the fit has no
+        Gaussian (the partition's log-likelihood is -inf)."""
+        if self.noise_scale_prior is None:
+            raise ValueError("this odometry term has no noise_scale_prior: its noise scale is fixed at 1")
+        labels = _canonical_labels(partition)
+        if len(labels) != self.n:
+            raise ValueError(f"a partition of this dataset has {self.n} labels, got {len(labels)}")
+        conditional = self._scale_conditionals.get(labels)
+        if conditional is None:
+            if self.n == 1:
+                return self.noise_scale_prior
+            fit = self._shared_fit(np.asarray(labels))
+            if fit.factor is None:
+                raise ValueError(f"partition {labels} has no Laplace fit ({fit.failure}): its probability is 0")
+            conditional = self.noise_scale_prior.conditional(fit.energy, self._scale_ties(np.asarray(labels)))
+        return conditional
+
+    def check_terms(self, terms) -> None:
+        """Refuse the terms of a posterior (``ptm.Posterior`` calls this) that contradict the model's
+        ``normalised_ties``: with a ``noise_scale_prior`` this term owns the normalised ties' dependence on the
+        scale, -(N - M) log s, so exactly one :class:`ptm.TieNormaliser` of the same sigma_T must be among them
+        where ``normalised_ties`` is True (else that dependence would count without its normaliser) and none
+        where it is False (else the normaliser would count without its dependence on s)."""
+        if self.noise_scale_prior is None:
+            return
+        normalisers = [term for term in terms if getattr(term, "completes_global_term", False)]
+        if self.model.normalised_ties and len(normalisers) != 1:
+            raise ValueError(f"the odometry model declares normalised_ties=True with its noise_scale_prior, so the "
+                             f"posterior needs exactly one ptm.TieNormaliser; it has {len(normalisers)}")
+        if not self.model.normalised_ties and normalisers:
+            raise ValueError("the odometry model declares normalised_ties=False with its noise_scale_prior, but the "
+                             f"posterior normalises the ties ({normalisers[0]!r}); declare normalised_ties=True")
+        for normaliser in normalisers:
+            if getattr(normaliser, "sigma_topology", None) != self.model.sigma_topology:
+                raise ValueError(f"{normaliser!r} normalises ties of sigma_topology "
+                                 f"{getattr(normaliser, 'sigma_topology', None)!r}, the odometry model's are "
+                                 f"{self.model.sigma_topology!r}")
 
     def diagnostics(self) -> dict:
         """Cache use, importance-sampling quality and optimiser effort so far.
@@ -265,7 +312,10 @@ class OdometryTerm:
                                             fit.factorisations, False, fit.x)
         else:
             self._remember_mode(tuple(labels.tolist()), fit)
-            evaluation = self.sampler.estimate(fit, labels)
+            if self.noise_scale_prior is None:
+                evaluation = self.sampler.estimate(fit, labels)
+            else:
+                evaluation = self._scale_marginal_estimate(fit, labels)
         if math.isnan(evaluation.log_likelihood) or evaluation.log_likelihood == math.inf:
             raise ValueError(
                 f"odometry log-likelihood of partition {tuple(labels.tolist())} is {evaluation.log_likelihood}"
@@ -278,6 +328,31 @@ class OdometryTerm:
                     "fallback": "-inf" if fit.factor is None else "Laplace proposal at the last iterate"})
         self._record(evaluation, time.perf_counter() - started)
         return evaluation
+
+    def _scale_marginal_estimate(self, fit: LaplaceFit, labels: np.ndarray) -> OdometryEvaluation:
+        """log int IG(s) P(O | T, s) ds as docs/model.md §3.3, "Noise scale", defines it: the Laplace part
+        integrated in closed form, times the importance-sampling correction IS / Laplace at the conditional
+        mode s_hat = (b + E*) / (a + k + 1), where the graph's covariances are s_hat times the model's (same P*
+        and common random numbers, the Hessian H / s_hat)."""
+        ties = self._scale_ties(labels)
+        conditional = self.noise_scale_prior.conditional(fit.energy, ties)
+        self._scale_conditionals.put(tuple(labels.tolist()), conditional)
+        scale = conditional.mode
+        graph = PoseGraph(self.graph.odometry, self.graph.sqrt_information / math.sqrt(scale),
+                          self.graph.sigma_topology * math.sqrt(scale), sparse_above=self.model.sparse_above)
+        topology = graph.topology(labels)
+        at_mode = graph.linearise(fit.x, topology)
+        scaled = dataclasses.replace(fit, energy=at_mode.energy, topology=topology,
+                                     factor=graph.factorise(topology, at_mode.gauss_newton))
+        at_scale = self.sampler.on(graph).estimate(scaled, labels)
+        laplace = (0.5 * self.dimension * math.log(2.0 * math.pi) - 0.5 * fit.factor.log_det()
+                   + self.noise_scale_prior.log_marginal(fit.energy, ties))
+        return dataclasses.replace(at_scale, laplace=laplace,
+                                   log_likelihood=laplace + at_scale.log_likelihood - at_scale.laplace)
+
+    def _scale_ties(self, labels: np.ndarray) -> int:
+        """k, the power of 1/s the ties contribute: N - M where they are normalised, else 0."""
+        return self.n - (int(labels.max()) + 1) if self.model.normalised_ties else 0
 
     def _shared_fit(self, labels: np.ndarray) -> LaplaceFit:
         """:meth:`fit`, from the memo that rebound terms share (:meth:`rebind`) when there is one."""
