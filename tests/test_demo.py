@@ -9,7 +9,9 @@ def test_demo_prints_scores_and_writes_figures(tmp_path, capsys):
     for method in ("odometry", "odometry+appearance", "greedy_odometry", "appearance_threshold", "gnc", "dcs", "pcm",
                    "distance_rank"):
         assert f"\n{method} " in printed
-    assert "ground truth" in printed
+    # the truth itself, not its place in the top five: calibrated on other floors (nested_loops, office), the short
+    # loop's penalty radius (8.8 m against its 2 m corners) merges every detection into one place (issue 44)
+    assert "true topology" in printed
     written = {path.name for path in tmp_path.iterdir()}
     assert {"summary.md", "trajectory.png"} <= written
     assert any(name.startswith("top5_") for name in written)

@@ -83,7 +83,8 @@ def test_the_online_build_differs_where_the_builder_says(monkeypatch):
     assert online.models[1].bind(SCORED).area == pytest.approx(batch.used["tie_area"])
     assert np.allclose(online.models[2].mu, global_mean.models[2].mu)  # the global mean, as the batch "global"
     assert not np.allclose(batch.models[2].mu, global_mean.models[2].mu)  # the batch default: the run's own
-    assert callable(online.prior) and isinstance(batch.prior, ptm.PoissonPrior)
+    assert callable(online.prior) and isinstance(batch.prior, ptm.GammaPoissonPrior)
+    assert isinstance(online.prior(SCORED.n), ptm.GammaPoissonPrior)
 
 
 def test_the_builder_refuses_what_it_cannot_build():
@@ -100,6 +101,7 @@ def test_the_builder_refuses_what_it_cannot_build():
     configured = replace(configured, inference=replace(configured.inference, prior_rate=3.0))
     built = build_models(configured, SCORED, lambda: calls.append(1) or HELD_OUT)
     assert calls == [] and built.used["source_prior_rate"] == built.used["source_penalty_radius"] == "config"
+    assert isinstance(built.prior, ptm.PoissonPrior) and built.prior.rate == 3.0  # a configured rate is plugged in
 
 
 def test_the_summarys_maps_are_the_scored_models_modes(monkeypatch):

@@ -60,14 +60,15 @@ CONFIG = {
 
 
 def cells_with_cached_datasets(tmp_path, config=CONFIG, scored_meta=None):
-    """The config's cells, with hand-made datasets in the cache for the scored and the calibration seeds."""
+    """The config's cells, with hand-made datasets in the cache for the scored run and the held-out runs (on the
+    floors and at the seeds ``calibration.held_out_floors`` names)."""
     parsed = experiment.parse_experiment(copy.deepcopy(config), source="test")
     cells = experiment.expand_cells(parsed, tmp_path)
     inputs = cells[0]["inputs"]
-    for seed in [0, *inputs["calibration_seeds"]]:
+    held_out = calibration.held_out_floors(inputs["world_spec"], inputs["calibration"], inputs["calibration_seeds"])
+    for world, seed in [(inputs["world_spec"], 0), *((spec, seed) for _, spec, seed in held_out)]:
         meta = {"places": {"0": [0, 0]}, "min_place_spacing": 2.0, **(scored_meta or {})} if seed == 0 else None
-        path = datacache.dataset_path(inputs["world_spec"], 0.0, 1.0, seed, inputs["generator_options"],
-                                      inputs["cache_dir"], None)
+        path = datacache.dataset_path(world, 0.0, 1.0, seed, inputs["generator_options"], inputs["cache_dir"], None)
         path.parent.mkdir(parents=True, exist_ok=True)
         loop_dataset(seed, meta=meta).save(path)
     return cells
@@ -86,13 +87,15 @@ def test_places_per_detection_pools_places_and_detections_over_runs():
 def test_the_prior_rate_is_configured_or_expects_places_per_detection_times_n_places():
     runs = [loop_dataset(0, labels=[0, 1, 0, 2]), loop_dataset(1, labels=[0, 1, 1])]
     rate, source = calibration.prior_rate(None, n=14, held_out=runs)
-    assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(10.0, rel=1e-9)
-    assert rate > 10.0 + 3.0  # the rate counts unvisited landmarks too
-    assert source == "calibrated: rate for E[places] = 0.714 places/detection on 2 held-out runs x N=14 = 10"
+    shape = calibration.PRIOR_RATE_SHAPE
+    assert ptm.GammaPoissonPrior(rate, shape).expected_places(14) == pytest.approx(10.0, rel=1e-9)
+    assert rate > ptm.PoissonPrior.with_expected_places(14, 10.0).rate > 10.0 + 3.0  # unvisited landmarks count too
+    assert source == ("calibrated: mean rate for E[places] = 0.714 places/detection on 2 held-out runs x N=14 = 10, "
+                      "Gamma shape 2")
     # every held-out detection its own place: the expected places stay half a place below N
     distinct = [loop_dataset(0, labels=[0, 1, 2, 3])]
     rate, _ = calibration.prior_rate(None, n=14, held_out=distinct)
-    assert ptm.PoissonPrior(rate).expected_places(14) == pytest.approx(13.5, rel=1e-9)
+    assert ptm.GammaPoissonPrior(rate, shape).expected_places(14) == pytest.approx(13.5, rel=1e-9)
 
     def never_called():
         raise AssertionError("a configured parameter must not load the held-out runs")
@@ -150,9 +153,13 @@ def test_the_posterior_does_not_read_the_scored_runs_ground_truth(tmp_path):
 def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     cells = cells_with_cached_datasets(tmp_path, scored_meta={"aliasing_auc": 0.93})
     inference, baseline = (run_cell(cell) for cell in cells)
-    assert inference["source_prior_rate"] == ("calibrated: rate for E[places] = 0.444 places/detection on 2 held-out "
-                                              "runs x N=9 = 4")
-    assert ptm.PoissonPrior(inference["prior_rate"]).expected_places(9) == pytest.approx(4.0, rel=1e-9)
+    assert inference["source_prior_rate"] == ("calibrated: mean rate for E[places] = 0.444 places/detection on 2 "
+                                              "held-out runs [nested_loops, office] x N=9 = 4, Gamma shape 2")
+    prior = ptm.GammaPoissonPrior(inference["prior_rate"], calibration.PRIOR_RATE_SHAPE)
+    assert prior.expected_places(9) == pytest.approx(4.0, rel=1e-9)
+    assert 0.0 < inference["prior_rate_posterior_sd"] < inference["prior_rate_posterior_mean"] < 10 * prior.rate
+    assert inference["noise_scale_prior"].startswith("IG(shape 1.5") and inference["noise_scale_posterior_mean"] > 0.0
+    assert inference["noise_scale_in_prior_tail"] in (True, False)
     assert inference["source_penalty_radius"].startswith("calibrated: 0.75 x ")
     assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.place_separation(
         calibration.calibration_datasets(cells[0])))
@@ -161,9 +168,9 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     assert inference["source_tie_area"] == ("this run's detections: within 0.5 m (the detection radius) of their "
                                             "dead-reckoned route, no labels")
     assert re.fullmatch(r"empirical Bayes \(independent, outlier share [0-9.e-]+ at [0-9.]+ x the variance\) on 2 "
-                        r"held-out runs around each run's mean; prior mean = this run's mean signature",
-                        inference["source_appearance"])
-    assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs"
+                        r"held-out runs \[nested_loops, office\] around each run's mean; prior mean = this run's mean "
+                        r"signature", inference["source_appearance"])
+    assert baseline["source_threshold"] == "calibrated: best mean ARI on 2 held-out runs [nested_loops, office]"
     assert inference["aliasing_auc"] == baseline["aliasing_auc"] == 0.93
 
     configured = copy.deepcopy(CONFIG)

@@ -10,8 +10,18 @@ parameter is therefore one of
   each uniform within r of their place differ by r / sqrt 2 per axis) and the
   margin of the landmarks' area of the normalised ties (docs/model.md §3.3);
 * **calibrated** on the *held-out* runs (:func:`calibration_datasets`):
-  labelled runs of the cell's world, aliasing and noise at seeds the
-  experiment never scores (the config loader refuses overlapping seed lists).
+  labelled runs at the cell's aliasing and noise, at seeds the experiment never
+  scores (the config loader refuses overlapping seed lists), on floors that are
+  not the scored one, as a user never calibrates on the floor they map
+  (``sweep.calibration = "other_floors"``, :func:`held_out_floors`): a preset or
+  floor file is calibrated on the other presets and the generated grids
+  :data:`CALIBRATION_GRIDS`, a generated grid on grids of one row or one column
+  more drawn at the calibration seeds; the k-th calibration seed drives the k-th
+  floor of that list, cyclically. ``"same_floor"`` keeps the old protocol, the
+  scored world itself at the calibration seeds, to report the gap. A recorded
+  log is calibrated on the other logs it names under either. A held-out run
+  with the scored run's content (a copy under another name) is refused
+  (:func:`ptm_bench.evaluation.held_out.refuse_scored_run`).
 
 The calibrated ones:
 
@@ -27,8 +37,7 @@ The calibrated ones:
   places than the scored run, and a count from other floors does not fit this
   one (a floor with more places has a longer route and more detections); the
   share of detections that are first visits is set by the route rules that
-  every floor of a generator shares, so it transfers. On a preset floor the
-  rate is the number of places the route visits, as the floor is the same;
+  every floor of a generator shares, so it transfers;
 * the penalty radius D (paper eq. 11-12) is ``penalty_radius_factor`` x the
   smallest distance between the true positions of two detections of different
   places, the minimum over every held-out run. D says "distinct places are not
@@ -47,16 +56,22 @@ The calibrated ones:
 Each function takes the configured value (None: not configured) and returns
 ``(value, source)``: the number and a one-line provenance that the builder of
 the models (:func:`ptm_bench.evaluation.models.build_models`) records as the
-``source_<parameter>`` column.
+``source_<parameter>`` column. A calibrated source names the floors or logs of
+its held-out runs in brackets (:func:`described`, read back by
+:func:`floors_in`), e.g. ``on 3 held-out runs [nested_loops, office, grid3x3]``.
 
     >>> import numpy as np, ptm
     >>> square = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
-    >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square)]   # one labelled run
+    >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square, meta={"world": "office"})]   # one run
     >>> rate, source = prior_rate(None, n=12, held_out=held_out)
-    >>> round(rate, 2), source
-    (19.32, 'calibrated: rate for E[places] = 0.75 places/detection on 1 held-out run x N=12 = 9')
+    >>> round(rate, 2)
+    29.45
+    >>> source
+    'calibrated: mean rate for E[places] = 0.75 places/detection on 1 held-out run [office] x N=12 = 9, Gamma shape 2'
     >>> penalty_radius(None, 0.75, held_out)
-    (3.0, 'calibrated: 0.75 x 4 m, the closest detections of different places on 1 held-out run')
+    (3.0, 'calibrated: 0.75 x 4 m, the closest detections of different places on 1 held-out run [office]')
+    >>> floors_in(source), [(name, seed) for name, _, seed in held_out_floors("office", "other_floors", [7, 8, 9])]
+    (['office'], [('nested_loops', 7), ('short_loop', 8), ('grid3x3', 9)])
     >>> topology_sigma(None, {"detection_radius": 1.5})
     (1.0606601717798212, 'sensor spec: detection radius 1.5 m / sqrt 2')
 """
@@ -64,39 +79,120 @@ the models (:func:`ptm_bench.evaluation.models.build_models`) records as the
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 import ptm
 
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded, load_recorded
+from ptm_bench.evaluation.held_out import refuse_scored_run
+from ptm_bench.evaluation.settings import CALIBRATION_PROTOCOLS, world_name
+from ptm_bench.world.floorplan import list_worlds, load_world
 
-__all__ = ["APPEARANCE_HYPERPARAMETERS", "appearance_fitter", "calibration_datasets", "fitted_appearance",
-           "labelled_runs", "penalty_radius", "place_separation", "places_per_detection", "prior_rate",
+__all__ = ["APPEARANCE_HYPERPARAMETERS", "CALIBRATION_GRIDS", "HELD_OUT_FLOOR", "appearance_fitter",
+           "calibration_datasets", "described", "fitted_appearance", "floors_in", "held_out_floors",
+           "labelled_runs", "other_floors", "penalty_radius", "place_separation", "places_per_detection", "prior_rate",
            "tie_area_margin", "topology_sigma"]
 
 CONFIG = "config"
+#: The Gamma shape of a calibrated prior rate: a coefficient of variation of 1 / sqrt 2, since places per
+#: detection carry over from other floors only roughly (the central 95 % of rates spans 0.12-2.8 x the mean).
+PRIOR_RATE_SHAPE = 2.0
+
+#: The generated floors a preset or floor-file world is calibrated on beside the other presets: the grid sweep's
+#: 3 x 3 grid and a 4 x 4 one, each calibration seed drawing its own layout.
+CALIBRATION_GRIDS = (
+    {"generator": "corridor_grid", "name": "grid3x3", "rows": 3, "cols": 3, "loops": 2, "place_density": 0.6},
+    {"generator": "corridor_grid", "name": "grid4x4", "rows": 4, "cols": 4, "loops": 3, "place_density": 0.6},
+)
+#: The dataset meta key under which :func:`calibration_datasets` names the floor or log a held-out run drove.
+HELD_OUT_FLOOR = "held_out_floor"
 
 
 def calibration_datasets(cell: dict) -> list[ptm.Dataset]:
-    """The labelled datasets of the cell's condition at its calibration seeds (never its scored seed).
+    """The labelled held-out runs of a cell (never its scored run), each named in its meta (:data:`HELD_OUT_FLOOR`).
 
-    For a recorded world, the recorded runs in its ``calibration`` list (never the scored run itself).
+    A simulated world's: the cell's aliasing and noise at its calibration seeds on :func:`held_out_floors`; a
+    recorded world's: the recorded runs in its ``calibration`` list. A held-out run with the scored run's content
+    is a ``ValueError`` (:func:`ptm_bench.evaluation.held_out.refuse_scored_run`: compared by hash, not by name).
     """
-    inputs = cell["inputs"]
+    inputs, aliasing, noise = cell["inputs"], cell["aliasing"], cell["noise"]
     components = cell["settings"].appearance.components
-    if is_recorded(inputs["world_spec"]):  # a recorded run is calibrated on the other recorded runs it names
-        return [load_recorded(path, components) for path in inputs["world_spec"]["calibration"]]
-    seeds = inputs["calibration_seeds"]
-    if cell["seed"] in seeds:
-        raise ValueError(f"seed {cell['seed']} is both scored and a calibration seed")
-    return [
-        dataset_for(inputs["world_spec"], cell["aliasing"], cell["noise"], seed, inputs["generator_options"],
-                    inputs["cache_dir"], components)
-        for seed in seeds
-    ]
+    world_spec, options, cache_dir = inputs["world_spec"], inputs["generator_options"], inputs["cache_dir"]
+    if is_recorded(world_spec):  # a recorded run is calibrated on the other recorded runs it names
+        runs = [(Path(path).stem, path, load_recorded(path, components)) for path in world_spec["calibration"]]
+    else:
+        seeds = inputs["calibration_seeds"]
+        if cell["seed"] in seeds:
+            raise ValueError(f"seed {cell['seed']} is both scored and a calibration seed")
+        runs = [(name, f"{name} at seed {seed}",
+                 dataset_for(spec, aliasing, noise, seed, options, cache_dir, components))
+                for name, spec, seed in held_out_floors(world_spec, inputs["calibration"], seeds)]
+    scored = dataset_for(world_spec, aliasing, noise, cell["seed"], options, cache_dir, components)
+    scored_name = world_spec["dataset"] if is_recorded(world_spec) else f"the scored run of {cell['cell_id']}"
+    refuse_scored_run(scored, scored_name,
+                      {f"held-out run {index} ({run})": dataset for index, (_, run, dataset) in enumerate(runs)})
+    return [dataset.replace(meta={**dataset.meta, HELD_OUT_FLOOR: name}) for name, _, dataset in runs]
+
+
+def held_out_floors(world_spec, protocol: str, seeds: Sequence[int]) -> list[tuple[str, object, int]]:
+    """``(name, world spec, seed)`` of a simulated world's held-out runs, one per calibration seed.
+
+    ``protocol`` (``sweep.calibration``): "other_floors", the k-th seed on the k-th floor of :func:`other_floors`,
+    cyclically; "same_floor", the world itself.
+    """
+    if protocol == "same_floor":
+        return [(world_name(world_spec), world_spec, seed) for seed in seeds]
+    if protocol != "other_floors":
+        raise ValueError(f"sweep.calibration must be one of {', '.join(map(repr, CALIBRATION_PROTOCOLS))}, "
+                         f"got {protocol!r}")
+    floors = other_floors(world_spec)
+    return [(*floors[index % len(floors)], seed) for index, seed in enumerate(seeds)]
+
+
+def other_floors(world_spec) -> list[tuple[str, object]]:
+    """``(name, world spec)`` of the floors a simulated world is calibrated on, none with its layout.
+
+    A preset or floor file: the presets of another layout (compared by content, not by name), then
+    :data:`CALIBRATION_GRIDS`. A generated grid: its generator table with one row more, then with one column more,
+    the world seed left to the calibration seed (another size and another draw: never the scored layout).
+    """
+    if isinstance(world_spec, str):
+        layout = _layout(load_world(world_spec))
+        presets = [(name, name) for name in list_worlds() if _layout(load_world(name)) != layout]
+        return presets + [(grid["name"], grid) for grid in CALIBRATION_GRIDS]
+    if "rows" not in world_spec or "cols" not in world_spec:
+        raise ValueError(f"world {world_name(world_spec)!r}: a generated grid needs 'rows' and 'cols'")
+    table = {key: value for key, value in world_spec.items() if key != "seed"}
+    sizes = ((table["rows"] + 1, table["cols"]), (table["rows"], table["cols"] + 1))
+    return [(f"grid{rows}x{cols}", {**table, "name": f"grid{rows}x{cols}", "rows": rows, "cols": cols})
+            for rows, cols in sizes]
+
+
+def _layout(floor) -> tuple:
+    return floor.nodes, floor.corridors, floor.places, floor.routes
+
+
+def described(held_out: Sequence[ptm.Dataset]) -> str:
+    """``"N held-out runs [floor, ...]"``: the count and the floors or logs they drove, in order of first use
+    (meta :data:`HELD_OUT_FLOOR`, else ``world``); without brackets where no run is named."""
+    names = [dataset.meta.get(HELD_OUT_FLOOR, dataset.meta.get("world")) for dataset in held_out]
+    count = f"{len(held_out)} held-out run{'s' if len(held_out) != 1 else ''}"
+    if not any(names):
+        return count
+    return f"{count} [{', '.join(dict.fromkeys(str(name) if name else 'unnamed' for name in names))}]"
+
+
+def floors_in(source: str) -> list[str]:
+    """The floors or logs a calibrated ``source_<parameter>`` names (:func:`described`); [] for any other source."""
+    return [name for match in _NAMED_RUNS.finditer(str(source)) for name in match.group(1).split(", ")]
+
+
+_NAMED_RUNS = re.compile(r"held-out runs? \[([^\]]*)\]")
 
 
 def fitted_appearance(held_out: Sequence[ptm.Dataset], model: str = "independent", evidence: str = "corrected",
@@ -159,7 +255,7 @@ def appearance_fitter(held_out: Sequence[ptm.Dataset], model: str = "independent
         raise ValueError(f"appearance.model must be 'joint' or 'independent', got {model!r}")
     with_outliers = (f", outlier share {fitted.outlier_share:.3g} at {fitted.outlier_scale:.3g} x the variance"
                      if outliers else "")
-    source = f"empirical Bayes ({model}{with_outliers}) on {_runs(held_out)}"
+    source = f"empirical Bayes ({model}{with_outliers}) on {described(held_out)}"
     return lambda scored_signatures: (fitted, source)
 
 
@@ -198,8 +294,9 @@ def place_separation(held_out: Sequence[ptm.Dataset]) -> float:
 
 
 def prior_rate(configured: float | None, n: int, held_out) -> tuple[float, str]:
-    """The ``configured`` ``inference.prior_rate``, or the rate that expects places per detection (held-out) x ``n``
-    places.
+    """The ``configured`` ``inference.prior_rate`` (a plug-in ``ptm.PoissonPrior``), or the mean rate of the
+    ``ptm.GammaPoissonPrior`` of shape ``PRIOR_RATE_SHAPE`` that expects places per detection (held-out) x ``n``
+    places (docs/model.md §3.1, "Uncertain rate").
 
     The expected places are kept below ``n - 0.5`` (a held-out share of 1, every detection its own place, would
     need an infinite rate) and ``n = 1`` needs no prior (any rate gives the one partition).
@@ -211,10 +308,10 @@ def prior_rate(configured: float | None, n: int, held_out) -> tuple[float, str]:
     share = places_per_detection(held_out)
     places = min(share * n, n - 0.5)
     if places <= 1.0:
-        return 1.0, f"calibrated: {share:.3g} places/detection on {_runs(held_out)} x N={n} <= 1 place; rate 1"
-    rate = ptm.PoissonPrior.with_expected_places(n, places).rate
-    return rate, (f"calibrated: rate for E[places] = {share:.3g} places/detection on {_runs(held_out)} x N={n} "
-                  f"= {places:.3g}")
+        return 1.0, f"calibrated: {share:.3g} places/detection on {described(held_out)} x N={n} <= 1 place; rate 1"
+    rate = ptm.GammaPoissonPrior.with_expected_places(n, places, PRIOR_RATE_SHAPE).rate
+    return rate, (f"calibrated: mean rate for E[places] = {share:.3g} places/detection on {described(held_out)} "
+                  f"x N={n} = {places:.3g}, Gamma shape {PRIOR_RATE_SHAPE:g}")
 
 
 def penalty_radius(configured: float | None, factor: float, held_out) -> tuple[float, str]:
@@ -229,7 +326,7 @@ def penalty_radius(configured: float | None, factor: float, held_out) -> tuple[f
     held_out = _materialised(held_out)
     separation = place_separation(held_out)
     return factor * separation, (f"calibrated: {factor:g} x {separation:.3g} m, the closest detections of "
-                                 f"different places on {_runs(held_out)}")
+                                 f"different places on {described(held_out)}")
 
 
 def topology_sigma(configured: float | None, meta: dict) -> tuple[float, str]:
@@ -269,7 +366,3 @@ def labelled_runs(held_out, what: str) -> list[ptm.Dataset]:
         if dataset.labels is None:
             raise ValueError(f"calibration of {what}: held-out run {index} has no labels")
     return held_out
-
-
-def _runs(held_out: list) -> str:
-    return f"{len(held_out)} held-out run{'s' if len(held_out) != 1 else ''}"

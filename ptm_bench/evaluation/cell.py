@@ -41,8 +41,8 @@ and the row records the move set and burn-in they ran (``inference_moves``,
     >>> [cell["variant"] for cell in cells]
     ['odometry+appearance', 'appearance_threshold']
     >>> row = run_cell(cells[1])                                      # the baseline: no sampling, a few seconds
-    >>> row["n_measurements"], row["gt_mass"], row["source_threshold"]
-    (9, 1.0, 'calibrated: best mean ARI on 1 held-out run')
+    >>> row["n_measurements"], row["source_threshold"]                 # calibrated on another floor
+    (9, 'calibrated: best mean ARI on 1 held-out run [nested_loops]')
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ import ptm
 
 from ptm_bench.evaluation import scoring
 from ptm_bench.evaluation.baselines import BASELINE_FEATURES, fit_threshold, greedy_threshold_labels
-from ptm_bench.evaluation.calibration import calibration_datasets, topology_sigma
+from ptm_bench.evaluation.calibration import calibration_datasets, described, topology_sigma
 from ptm_bench.evaluation.datacache import dataset_for
 from ptm_bench.evaluation.models import build_models
 from ptm_bench.evaluation.peers import PEERS, PeerNoise, run_calibrated, score_peer
@@ -121,7 +121,7 @@ def _run_baseline(cell: dict, dataset: ptm.Dataset) -> dict:
     labels = greedy_threshold_labels(features(dataset), threshold)
     row = scoring.score(scoring.point_mass(labels), dataset.labels)
     row["threshold"] = threshold
-    row["source_threshold"] = f"calibrated: best mean ARI on {len(held_out)} held-out run{'s' * (len(held_out) != 1)}"
+    row["source_threshold"] = f"calibrated: best mean ARI on {described(held_out)}"
     row["top5"] = json.dumps([[list(labels), 1.0]])
     return row
 
@@ -192,6 +192,12 @@ def _run_inference(cell: dict, dataset: ptm.Dataset) -> dict:
     row["warning"] = disagreement(result.diagnostics)
     row.update(_flat_diagnostics(result.diagnostics))
     row["entropy"] = result.entropy()
+    if hasattr(posterior.prior, "rate_posterior_of"):  # an uncertain rate: what the run taught about it
+        row["prior_rate_posterior_mean"], row["prior_rate_posterior_sd"] = posterior.prior.rate_posterior_of(result)
+    if any(getattr(term, "noise_scale_prior", None) is not None for term in posterior.terms):
+        scale = ptm.noise_scale_posterior(result, posterior)
+        row.update(noise_scale_posterior_mean=scale.mean, noise_scale_posterior_median=scale.quantiles[0.5],
+                   noise_scale_in_prior_tail=scale.in_prior_tail)
     row["top5"] = json.dumps([[list(labels), round(probability, 6)] for labels, probability in result.top(TOP_K)])
     for name, trace in result.traces.items():
         row[f"trace_{name}"] = json.dumps(_thinned(trace).tolist())

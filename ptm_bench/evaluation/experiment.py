@@ -153,7 +153,7 @@ def _parsed_experiment(raw: dict, default_name: str) -> Experiment:
     return Experiment(
         checks=_validated_checks(raw.get("checks", {}), names, baselines),
         name=name,
-        description=str(raw.get("description", "")),
+        description=_validated_description(raw.get("description", "")),
         sweep=sweep,
         variants=variants,
         baselines=tuple(baselines),
@@ -177,7 +177,9 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
     runs += [(baseline, baseline, "baseline", replace(experiment.settings, name=baseline))
              for baseline in experiment.baselines]
     cells = []
-    for world, aliasing, noise, seed in itertools.product(sweep.worlds, sweep.aliasing, sweep.noise, sweep.seeds):
+    identities = [_identity(world, sweep) for world in sweep.worlds]
+    for (index, world), aliasing, noise, seed in itertools.product(enumerate(sweep.worlds), sweep.aliasing,
+                                                                   sweep.noise, sweep.seeds):
         condition = {
             "experiment": experiment.name,
             "world": world_name(world),
@@ -189,6 +191,7 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
         inputs = {
             "world_spec": world,
             "calibration_seeds": list(sweep.calibration_seeds),
+            "calibration": sweep.calibration,  # in the definition: a resumed sweep never mixes protocols
             "generator_options": sweep.generator_options,
             "cache_dir": cache_dir,
         }
@@ -196,29 +199,41 @@ def expand_cells(experiment: Experiment, results_dir: Path) -> list[dict]:
             cell_id = f"{condition['world']}|a={aliasing:g}|noise={noise:g}|seed={seed}|{variant_name}"
             cell = {"cell_id": cell_id, **condition, "variant": variant_name, "models": models,
                     "method": method, "settings": settings, "inputs": inputs}
-            cells.append({**cell, "definition": _definition(cell)})
+            cells.append({**cell, "definition": _definition(cell, identities[index])})
     return cells
 
 
-def _definition(cell: dict) -> str:
+def _definition(cell: dict, identity: dict) -> str:
     """A digest of everything that decides a cell's row.
 
-    Its config (everything in the cell but where its datasets are cached), the
-    world's content and the simulator's version
-    (:func:`ptm_bench.evaluation.datacache.world_identity`: edit a world file or the
-    simulator's code and the cell is recomputed on the next run), and
-    :func:`ptm_bench.evaluation.cell.cell_version`, the version of the code that turns a
+    Its config (everything in the cell but where its datasets are cached, so its calibration seeds and
+    protocol, ``sweep.calibration``, too), the ``identity`` of its world and of its held-out floors
+    (:func:`_identity`: edit a world file or the simulator's code and the cell is recomputed on the next
+    run), and :func:`ptm_bench.evaluation.cell.cell_version`, the version of the code that turns a
     dataset into a row. The settings enter as the JSON of the cell's
     :class:`ptm_bench.evaluation.settings.Variant` (``dataclasses.asdict``).
     """
-    # Imported here: both pull in the simulator or the inference package, which parsing configs does not need.
+    # Imported here: it pulls in the inference package, which parsing configs does not need.
     from ptm_bench.evaluation.cell import cell_version
-    from ptm_bench.evaluation.datacache import world_identity
 
     decisive = {**cell, "settings": asdict(cell["settings"]),
                 "inputs": {key: value for key, value in cell["inputs"].items() if key != "cache_dir"},
-                "world_identity": world_identity(cell["inputs"]["world_spec"]), "cell_version": cell_version()}
+                **identity, "cell_version": cell_version()}
     return hashlib.sha256(json.dumps(decisive, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _identity(world, sweep: SweepSettings) -> dict:
+    """The content and simulator version (:func:`ptm_bench.evaluation.datacache.world_identity`) of a world and of
+    each floor its held-out runs drive (:func:`ptm_bench.evaluation.calibration.held_out_floors`; a recorded
+    world's identity holds its calibration files)."""
+    # Imported here: they pull in the simulator's code version and the floors, which parsing configs does not need.
+    from ptm_bench.evaluation.calibration import held_out_floors
+    from ptm_bench.evaluation.datacache import is_recorded, world_identity
+
+    floors = {} if is_recorded(world) else {
+        name: spec for name, spec, _ in held_out_floors(world, sweep.calibration, sweep.calibration_seeds)}
+    return {"world_identity": world_identity(world),
+            "held_out_identity": [world_identity(spec) for spec in floors.values()]}
 
 
 def _refuse_peers_without_odometry(sweep: SweepSettings, peers: list[str]) -> None:
@@ -293,6 +308,12 @@ def _validated_checks(raw, variants: list[str], baselines: list[str]) -> tuple[d
                         "threshold": float(match.group(2)), "condition": f"{match.group(1)} {match.group(2)}"}
                        for target in targets]
     return tuple(checks)
+
+
+def _validated_description(description) -> str:
+    if not isinstance(description, str):
+        raise SettingError("description", f" must be a string, got {description!r}")
+    return description
 
 
 def _validated_name(name) -> str:

@@ -58,13 +58,14 @@ ONLINE_DIFFERENCES = ("source_appearance", "appearance_hyperparameters", "tie_ar
 class Models:
     """What :func:`build_models` returns.
 
-    ``prior``: a ``ptm.PoissonPrior``; online, a function from the number of detections to one; None without
+    ``prior``: a ``ptm.GammaPoissonPrior`` (a ``ptm.PoissonPrior`` where the rate is configured); online, a
+    function from the number of detections to one; None without
     held-out runs to calibrate its rate on. ``models``: the likelihood models, to bind to a dataset
     (``ptm.Posterior(dataset, prior, models)``, ``ptm.OnlineMapper(prior, models)``). ``used``: every parameter
     used, ``{name: value, "source_" + name: where it came from}``.
     """
 
-    prior: ptm.PoissonPrior | Callable[[int], ptm.PoissonPrior] | None
+    prior: ptm.GammaPoissonPrior | ptm.PoissonPrior | Callable[[int], ptm.GammaPoissonPrior] | None
     models: tuple
     used: dict
 
@@ -105,8 +106,12 @@ def _odometry(settings: OdometrySettings, dataset: ptm.Dataset, runs, online: bo
                                                                            settings.penalty_radius_factor, runs)
         used["penalty_radius"], used["max_penalty"] = radius, settings.max_penalty
         penalty = {"penalty_radius": radius, "max_penalty": settings.max_penalty}
+    scale_prior = ptm.odometry.NoiseScalePrior.wide()  # the covariances' scale, integrated out (docs/model.md §3.3)
+    used["noise_scale_prior"] = f"IG(shape {scale_prior.shape:g}, scale {scale_prior.scale:.4g})"
+    used["source_noise_scale_prior"] = "wide, median 1 x the configured covariances (95 % within 0.25-11)"
     model = ptm.OdometryModel(sigma_xy=settings.sigma_xy, sigma_theta=settings.sigma_theta, sigma_topology=sigma,
-                              n_importance=settings.n_importance, seed=seed, **penalty)
+                              n_importance=settings.n_importance, seed=seed, noise_scale_prior=scale_prior,
+                              normalised_ties=True, **penalty)
     margin = calibration.tie_area_margin(dataset.meta)
     route = f"within {margin:g} m (the detection radius) of their dead-reckoned route, no labels"
     if online:
@@ -146,15 +151,23 @@ def _prior(configured: float | None, dataset: ptm.Dataset, runs, online: bool, u
         return None
     if not online:
         used["prior_rate"], used["source_prior_rate"] = calibration.prior_rate(configured, dataset.n, runs)
-        return ptm.PoissonPrior(used["prior_rate"])
+        return _prior_of_rate(used["prior_rate"], configured)
     if configured is not None:
         used["prior_rate"], used["source_prior_rate"] = float(configured), calibration.CONFIG
         return ptm.PoissonPrior(configured)
     share = calibration.places_per_detection(runs())
     used["source_prior_rate"] = (f"calibrated: for n detections, the rate expecting {share:.3g} places/detection "
-                                 f"on {len(runs())} held-out run(s) x n places")
+                                 f"on {calibration.described(runs())} x n places")
     return functools.partial(_calibrated_prior, runs=runs)
 
 
-def _calibrated_prior(n: int, runs: Callable[[], Sequence[ptm.Dataset]]) -> ptm.PoissonPrior:
-    return ptm.PoissonPrior(calibration.prior_rate(None, n, runs)[0])
+def _calibrated_prior(n: int, runs: Callable[[], Sequence[ptm.Dataset]]) -> ptm.GammaPoissonPrior:
+    return _prior_of_rate(calibration.prior_rate(None, n, runs)[0], None)
+
+
+def _prior_of_rate(rate: float, configured: float | None):
+    """A configured rate is plugged in (``ptm.PoissonPrior``); a calibrated one is uncertain
+    (``ptm.GammaPoissonPrior`` of shape ``calibration.PRIOR_RATE_SHAPE``, docs/model.md §3.1)."""
+    if configured is not None:
+        return ptm.PoissonPrior(rate)
+    return ptm.GammaPoissonPrior(rate, calibration.PRIOR_RATE_SHAPE)

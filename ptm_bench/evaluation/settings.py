@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import inspect
 import math
+import sys
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
-__all__ = ["APPEARANCE_MODELS", "APPEARANCE_PRIOR_MEANS", "AppearanceSettings", "DEFAULTS", "EVIDENCE_FORMS",
-           "InferenceSettings", "METHODS", "MODEL_NAMES", "MOVE_SETS", "OdometrySettings", "REMOVED_KEYS",
-           "SECTIONS", "SettingError", "SweepSettings", "Variant", "WORLD_GENERATORS", "parsed", "world_name"]
+__all__ = ["APPEARANCE_MODELS", "APPEARANCE_PRIOR_MEANS", "AppearanceSettings", "CALIBRATION_PROTOCOLS", "DEFAULTS",
+           "EVIDENCE_FORMS", "InferenceSettings", "METHODS", "MODEL_NAMES", "MOVE_SETS", "OdometrySettings",
+           "REMOVED_KEYS", "SECTIONS", "SettingError", "SweepSettings", "Variant", "WORLD_GENERATORS", "parsed",
+           "world_name"]
 
 MODEL_NAMES = ("odometry", "appearance")
 METHODS = ("mcmc", "tempered", "exact", "auto")  # auto: exact when N <= exact_max_n and affordable, else tempered
@@ -38,6 +40,9 @@ EVIDENCE_FORMS = ("corrected", "paper_eq19")
 APPEARANCE_MODELS = ("independent", "joint")
 APPEARANCE_PRIOR_MEANS = ("run", "global")
 WORLD_GENERATORS = ("corridor_grid",)
+#: Where a simulated world's held-out runs drive (``ptm_bench.evaluation.calibration.held_out_floors``): other
+#: floors (the default), or the scored floor itself (the old protocol, kept to report the gap).
+CALIBRATION_PROTOCOLS = ("other_floors", "same_floor")
 RESULTS_TAG = "results-2026-12-06"
 
 #: Keys a config may no longer set, each with the rule that replaced it: they pinned the modes of results that
@@ -75,12 +80,23 @@ class SettingError(ValueError):
         return SettingError(f"{where}.{self.path}", self.problem)
 
 
+#: What a variant's or a world's name must be: it is part of every cell's id and a value of the table's rows.
+ROW_NAME = "a non-empty string of printable characters (no newline, tab or other control character) without '|'"
+
+
+def _is_row_name(value) -> bool:
+    return isinstance(value, str) and bool(value) and value.isprintable() and "|" not in value
+
+
 def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    """A finite real a float holds: not a bool, NaN or infinity, nor an integer beyond the largest float (10**400)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return math.isfinite(value) if isinstance(value, float) else abs(value) <= sys.float_info.max
 
 
 def _setting(default=None, *, check=None, must_be: str = "", choices=None, number: bool = False):
@@ -217,7 +233,10 @@ class SweepSettings:
     ``worlds``: names of ``ptm_bench.world.floorplan.list_worlds()`` or floor ``.toml`` paths; generated worlds
     ``{generator = "corridor_grid", name = ..., rows = ..., ...}``; recorded runs ``{dataset = "run.npz", name =
     ..., calibration = ["other.npz", ...]}`` (calibration: every other recorded world of the sweep unless given; a
-    run is never its own calibration). ``calibration_seeds`` must be held out from ``seeds``.
+    run is never its own calibration). ``calibration_seeds`` must be held out from ``seeds``. ``calibration``:
+    "other_floors", a simulated world's held-out runs drive other floors than the scored one (other presets and
+    generated grids, or grids of other seeds and sizes), or "same_floor", the scored world itself (the old
+    protocol, to report the gap); a recorded world is calibrated on other logs under either.
     ``generator_options``: keyword arguments of ``ptm_bench.simulation.generate.generate_dataset``.
     """
 
@@ -226,6 +245,7 @@ class SweepSettings:
     noise: tuple[float, ...] = (1.0,)
     seeds: tuple[int, ...] = None
     calibration_seeds: tuple[int, ...] = (1000, 1001, 1002)
+    calibration: str = "other_floors"
     generator_options: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -241,6 +261,9 @@ class SweepSettings:
         shared = sorted(set(self.seeds) & set(self.calibration_seeds))
         if shared:
             raise SettingError("calibration_seeds", f" must be held out from seeds; both contain {shared}")
+        if self.calibration not in CALIBRATION_PROTOCOLS:
+            raise SettingError("calibration", f" must be one of {', '.join(map(repr, CALIBRATION_PROTOCOLS))}, "
+                                              f"got {self.calibration!r}")
         if not isinstance(self.generator_options, dict):
             raise SettingError("generator_options", " must be a table")
         _check_generator_options(self.generator_options)
@@ -262,8 +285,8 @@ class Variant:
     appearance: AppearanceSettings = field(default_factory=AppearanceSettings)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name or "|" in self.name:
-            raise SettingError("name", f" must be a non-empty string without '|', got {self.name!r}")
+        if not _is_row_name(self.name):
+            raise SettingError("name", f" must be {ROW_NAME}, got {self.name!r}")
         if isinstance(self.models, str) or not isinstance(self.models, (list, tuple)):
             raise SettingError("models", f" must be a list of {', '.join(MODEL_NAMES)}, got {self.models!r}")
         unknown = [model for model in self.models if model not in MODEL_NAMES]
@@ -313,6 +336,8 @@ def _validated_world(world, index: int):
         from ptm_bench.world.floorplan import list_worlds  # imported here: parsing a config needs no world otherwise
 
         known = list_worlds()
+        if not _is_path(world):
+            raise SettingError(where, f": a world name or path is a non-empty string without NUL, got {world!r}")
         if world not in known and Path(world).suffix != ".toml":
             raise SettingError(where, f": unknown world {world!r}; known worlds: {', '.join(sorted(known))}")
         return world
@@ -321,9 +346,10 @@ def _validated_world(world, index: int):
     if "dataset" in world:  # a recorded run (ptm-bench import-carmen writes them)
         _refuse_unknown(world, ("dataset", "name", "calibration"), where, "a recorded world")
         calibration = world.get("calibration", [])
-        if not isinstance(world["dataset"], str) or not isinstance(calibration, (list, tuple)) or \
-                not all(isinstance(path, str) for path in calibration):
-            raise SettingError(where, ": 'dataset' is a .npz path and 'calibration' a list of .npz paths")
+        if not _is_path(world["dataset"]) or not isinstance(calibration, (list, tuple)) or \
+                not all(_is_path(path) for path in calibration):
+            raise SettingError(where, ": 'dataset' is a .npz path and 'calibration' a list of .npz paths (non-empty "
+                                      f"strings without NUL), got {world['dataset']!r} and {calibration!r}")
     else:
         if world.get("generator") not in WORLD_GENERATORS:
             raise SettingError(f"{where}.generator", f": unknown world generator {world.get('generator')!r}; known: "
@@ -334,9 +360,14 @@ def _validated_world(world, index: int):
                         "a generated world")
     if "name" not in world:
         raise SettingError(where, " needs a 'name' (the world's name in the table)")
-    if not isinstance(world["name"], str) or not world["name"] or "|" in world["name"]:
-        raise SettingError(f"{where}.name", " must be a string without '|' (the world's name in the table)")
+    if not _is_row_name(world["name"]):
+        raise SettingError(f"{where}.name", f" must be {ROW_NAME} (the world's name in the table), got "
+                                            f"{world['name']!r}")
     return dict(world)
+
+
+def _is_path(value) -> bool:
+    return isinstance(value, str) and bool(value) and "\x00" not in value
 
 
 def _refuse_unknown(table: dict, known, where: str, what: str) -> None:

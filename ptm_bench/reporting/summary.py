@@ -48,6 +48,7 @@ from ptm.recorder import RENORMALISE_COVERAGE, STRAY_CHAIN_MASS
 from ptm.se2 import dead_reckoning
 
 from ptm_bench.evaluation import scoring
+from ptm_bench.evaluation.calibration import floors_in
 from ptm_bench.evaluation.datacache import dataset_for, is_recorded
 from ptm_bench.evaluation.experiment import PEER_NAMES, Experiment, expand_cells
 from ptm_bench.evaluation.models import build_models
@@ -98,8 +99,9 @@ def _edited(recorded, current) -> bool:
 
 
 def aggregate(table: pd.DataFrame) -> pd.DataFrame:
-    """One row per world x aliasing x noise x variant: scores summarised over the finished seeds."""
-    ok = _with_calibration(table[table["status"] == "ok"]) if len(table) else table
+    """One row per world x aliasing x noise x variant: scores summarised over the finished seeds (none when no cell
+    finished)."""
+    ok = _finished(table)
     rows = []
     for key, group in (ok.groupby(CONDITION + ["variant"], sort=False) if len(ok) else []):
         rank = group["gt_rank"]
@@ -140,7 +142,7 @@ def calibration_by_variant(table: pd.DataFrame) -> pd.DataFrame:
     the mean over cells of log max(gt_mass, 1e-6); ``confidently_wrong`` the
     share of cells whose MAP has probability >= 0.9 and is not the truth.
     """
-    ok = _with_calibration(table[table["status"] == "ok"]) if len(table) else table
+    ok = _finished(table)
     rows = []
     for variant, group in (ok.groupby("variant", sort=False) if len(ok) else []):
         rows.append({
@@ -192,6 +194,13 @@ def side_by_side(experiment: Experiment, table: pd.DataFrame) -> pd.DataFrame:
         rank.append((conditions.setdefault(key[:-1], len(conditions)), order.get(key[-1], len(order))))
     frame = pd.DataFrame(rows)
     return frame.iloc[sorted(range(len(frame)), key=rank.__getitem__)].reset_index(drop=True)
+
+
+def _finished(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows of finished cells, with their calibration columns (:func:`_with_calibration`); an empty frame when
+    none finished (a table of failed cells alone has no score columns)."""
+    ok = table[table["status"] == "ok"] if len(table) else table
+    return _with_calibration(ok) if len(ok) else ok
 
 
 def _with_calibration(ok: pd.DataFrame) -> pd.DataFrame:
@@ -355,6 +364,9 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         "",
     ]
     lines += _left_out_note(left_out)
+    if len(table) and len(failed) == len(table):
+        lines += [f"**Every cell failed** ({len(failed)} of {len(table)}): there are no scores to summarise; the "
+                  "errors are listed under Failed cells.", ""]
     if experiment.paper and len(summary):
         lines += ["## The paper's figures and ours", "", markdown_table(_paper_comparison(experiment, summary)), ""]
     if len(table):
@@ -367,9 +379,13 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
         lines += _odometry_ess_note(summary)
         lines += _calibration_section(table, summary)
+    lines += _held_out_floors_section(experiment, table)
     lines += _provenance_section(table)
     if len(failed):
-        lines += ["## Failed cells", "", markdown_table(failed[["cell_id", "error"]]), ""]
+        # a cell id joins its parts with '|', which would end a cell of the markdown table
+        listed = failed[["cell_id", "error"]].apply(lambda column: column.map(
+            lambda value: value.replace("|", r"\|") if isinstance(value, str) else value))
+        lines += ["## Failed cells", "", markdown_table(listed), ""]
     if figures and len(summary):
         lines += ["## Figures", ""]
         drawn = _draw_figures(experiment, table, results_dir)
@@ -477,6 +493,29 @@ def _calibration_section(table: pd.DataFrame, summary: pd.DataFrame) -> list[str
                                                  "confidently_wrong"]
         lines += ["### Calibration per condition", "", markdown_table(summary[columns]), ""]
     return lines
+
+
+def _held_out_floors_section(experiment: Experiment, table: pd.DataFrame) -> list[str]:
+    """Per scored world, the floors or logs each calibrated parameter's held-out runs drove (read from the
+    ``source_*`` columns by :func:`ptm_bench.evaluation.calibration.floors_in`); nothing when none names any."""
+    ok = table[table["status"] == "ok"] if len(table) else table
+    sources = [column for column in ok.columns if column.startswith(SOURCE_PREFIX)]
+    calibrated_on = {}  # (world, floors) -> parameters
+    for world, group in (ok.groupby("world", sort=False) if len(ok) else []):
+        for column in sources:
+            floors = dict.fromkeys(name for source in group[column].dropna() for name in floors_in(source))
+            if floors:
+                calibrated_on.setdefault((world, ", ".join(floors)), []).append(column[len(SOURCE_PREFIX):])
+    if not calibrated_on:
+        return []
+    rows = pd.DataFrame([{"world": world, "parameters": ", ".join(parameters), "calibrated on": floors}
+                         for (world, floors), parameters in calibrated_on.items()])
+    protocol = {"other_floors": "floors other than the scored one", "same_floor": "the scored floor itself, the "
+                "old protocol: these parameters saw its layout"}[experiment.sweep.calibration]
+    return ["## Calibration floors and logs", "",
+            f"The floors or logs of the held-out runs each parameter was calibrated on (`sweep.calibration = "
+            f"\"{experiment.sweep.calibration}\"`: a simulated world on {protocol}; a recorded log on other logs).",
+            "", markdown_table(rows), ""]
 
 
 def _provenance_section(table: pd.DataFrame) -> list[str]:

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ptm_bench.evaluation.calibration import labelled_runs
+from ptm_bench.evaluation.calibration import described, labelled_runs
 from ptm_bench.evaluation.scoring import adjusted_rand_index
 
 __all__ = ["Calibration", "calibrate", "run_calibrated"]
@@ -63,10 +63,9 @@ def calibrate(peer, held_out: Sequence, noise) -> Calibration:
         table.append((settings, float(np.mean(scores)), failures))
     best = max(range(len(table)), key=lambda index: (table[index][1], -index))
     settings, mean_ari, _ = table[best]
-    runs = f"{len(held_out)} held-out run{'s' * (len(held_out) != 1)}"
     return Calibration(peer.name, settings, mean_ari,
                        tuple((asdict(row[0]), row[1], row[2]) for row in table),
-                       f"calibrated: best mean ARI {mean_ari:.3f} of {len(table)} settings on {runs}")
+                       f"calibrated: best mean ARI {mean_ari:.3f} of {len(table)} settings on {described(held_out)}")
 
 
 def run_calibrated(peer, dataset, held_out: Sequence, noise):
