@@ -66,7 +66,7 @@ def truth_masses(loop_fits, max_penalty):
 
 
 @pytest.mark.slow  # five exact enumerations with odometry each (the first on a worker also fits the 877 partitions)
-@pytest.mark.parametrize("max_penalty", [10.0, 30.0, 100.0])
+@pytest.mark.parametrize("max_penalty", [10.0, 100.0])  # where the single Gaussian fails, and the harness's
 def test_ground_truth_mass_does_not_depend_on_the_importance_seed(loop_fits, max_penalty):
     masses = truth_masses(loop_fits, max_penalty)
     assert np.ptp(masses) <= SPREAD_TOLERANCE, masses
