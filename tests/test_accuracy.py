@@ -49,7 +49,7 @@ def accuracy_config(name: str, seeds=SEEDS) -> dict:
     config = copy.deepcopy(BASE)
     config["name"] = name
     config["sweep"].update(CONDITIONS[name], seeds=list(seeds))
-    if name == "nested_low_noise":  # only the full model is checked there
+    if name in ("nested_low_noise", "nested_moderate_noise_aliased"):  # only the full model is checked there
         config["variants"] = config["variants"][1:]
     if name == "short_loop_aliased":
         config["odometry"]["max_penalty"] = 50.0
@@ -125,8 +125,9 @@ def test_aliased_appearance_does_not_mislead_the_odometry(table):
     odometry alone's 0.999 0.736 0.997 1.000 1.000 1.000 0.998 1.000; chains agree in every run. Threshold: the mean over the CI
     seeds above 0.9 and at least odometry alone's mean minus 0.05 (seeds 0-2: 0.997 against 0.911).
     """
-    cells = table("nested_moderate_noise_aliased")
-    aliased, odometry = mass(cells, "odometry+appearance"), mass(cells, "odometry")
+    # odometry alone does not see the decor: its cells are those at aliasing 0 (the same runs but for the panels)
+    aliased, odometry = mass(table("nested_moderate_noise_aliased"), "odometry+appearance"), mass(
+        table("nested_moderate_noise"), "odometry")
     assert aliased.mean() > 0.9 and aliased.mean() >= odometry.mean() - 0.05, (aliased, odometry)
 
 

@@ -65,10 +65,10 @@ def truth_masses(loop_fits, max_penalty):
                      .probability(truth) for s in SEEDS])
 
 
-@pytest.mark.slow  # five exact enumerations with odometry each (the first on a worker also fits the 877 partitions)
-@pytest.mark.parametrize("max_penalty", [10.0, 100.0])  # where the single Gaussian fails, and the harness's
-def test_ground_truth_mass_does_not_depend_on_the_importance_seed(loop_fits, max_penalty):
-    masses = truth_masses(loop_fits, max_penalty)
+@pytest.mark.slow  # five exact enumerations with odometry (the first on a worker also fits the 877 partitions)
+def test_ground_truth_mass_does_not_depend_on_the_importance_seed(loop_fits):
+    """At P_max 10, where the single Gaussian fails (above: at 30 and 100 both proposals pass)."""
+    masses = truth_masses(loop_fits, 10.0)
     assert np.ptp(masses) <= SPREAD_TOLERANCE, masses
 
 

@@ -240,7 +240,10 @@ def test_delayed_acceptance_with_odometry_and_appearance_matches_the_exact_poste
 @pytest.mark.parametrize("sampler", SAMPLERS.values(), ids=SAMPLERS.keys())
 @pytest.mark.parametrize("kind", ["skipped", "first_ratio_kept"])
 def test_negative_control_broken_second_stage_fails(monkeypatch, sampler, kind):
+    # measured at 5 000 steps (15 000): skipped 0.974 (0.973) mcmc, 0.954 (0.957) tempered; first ratio kept
+    # 0.433 (0.411) mcmc, 0.342 (0.348) tempered
     posterior, exact = mixed_target()
     monkeypatch.setattr(ptm.moves.mixture, "metropolis_step", metropolis_step_with_broken_second_stage(kind))
-    total_variation = total_variation_to_exact(posterior, exact, seed=5, unscreened_share=0.0, **sampler)
+    total_variation = total_variation_to_exact(posterior, exact, seed=5, n_samples=5_000, unscreened_share=0.0,
+                                               **sampler)
     assert total_variation > 3 * TOLERANCE

@@ -106,8 +106,12 @@ def run(args) -> int:
         for column in sorted(c for c in full.columns if c.startswith("source_") and isinstance(full.iloc[0][c], str)):
             name = column.removeprefix("source_")
             value = full.iloc[0].get(name)
-            shown = f"{value:.3g} " if isinstance(value, float) and value == value else ""
-            print(f"  {name:<16}{shown}({full.iloc[0][column]})")
+            shown = f"{value:.3g} " if isinstance(value, float) and value == value else (
+                f"{value} " if isinstance(value, str) else "")
+            print(f"  {name:<18}{shown}({full.iloc[0][column]})")
+        print(f"  learnt from this run: prior rate {full.iloc[0]['prior_rate_posterior_mean']:.3g} "
+              f"± {full.iloc[0]['prior_rate_posterior_sd']:.2g}, odometry noise scale "
+              f"{full.iloc[0]['noise_scale_posterior_mean']:.3g} (posterior means)")
         print("\nmost probable topologies with odometry + appearance:")
         for labels, probability in json.loads(full.iloc[0]["top5"]):
             marker = "  <- ground truth" if tuple(labels) == truth else ""
