@@ -234,6 +234,20 @@ def test_the_odometry_ess_is_summarised_and_a_degenerate_one_is_flagged(tmp_path
     assert "short_loop a=1 noise=1 appearance: 1.2" in degenerate
 
 
+def test_a_noise_scale_in_its_priors_tail_is_flagged_by_condition(tmp_path, experiment):
+    table = _table(experiment, tmp_path)
+    sampled = table["variant"] == "appearance"  # stands in for a variant with odometry: only the columns matter
+    table["noise_scale_posterior_mean"] = np.where(sampled, 1.3, np.nan)
+    table["noise_scale_in_prior_tail"] = np.where(sampled, 0.0, np.nan)
+    healthy = summary.write_summary(experiment, table, tmp_path, figures=False).read_text()
+    assert "noise scale at the prior's edge" not in healthy
+    table.loc[sampled & (table["aliasing"] == 1.0), ["noise_scale_posterior_mean", "noise_scale_in_prior_tail"]] = (
+        57.0, 1.0)
+    flagged = summary.write_summary(experiment, table, tmp_path, figures=False).read_text()
+    assert "**Odometry noise scale at the prior's edge** in 1 of 2 conditions" in flagged
+    assert "short_loop a=1 noise=1 appearance: mean scale 57, 100% of seeds" in flagged
+
+
 def test_the_provenance_says_how_sampled_probabilities_were_estimated(tmp_path, experiment):
     table = _table(experiment, tmp_path)
     assert "`estimate`" not in "\n".join(summary._provenance_section(table))  # rows without the diagnostic

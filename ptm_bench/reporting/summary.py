@@ -127,6 +127,8 @@ def aggregate(table: pd.DataFrame) -> pd.DataFrame:
             "rhat_over_1.1": _fraction_above(group, "diag_rhat_log_prob", 1.1),
             "chains_agree": _chains_agree(group),
             "odometry_ess": _mean(group, "diag_odometry_ess_mean"),
+            "noise_scale": _mean(group, "noise_scale_posterior_mean"),
+            "noise_scale_in_prior_tail": _mean(group, "noise_scale_in_prior_tail"),
             "detections": _mean(group, "n_measurements"),
             "wall_s": group["wall_s"].mean(),
             **_pooled_calibration(group),
@@ -287,6 +289,24 @@ def _odometry_ess_note(summary: pd.DataFrame) -> list[str]:
             "exceed the reported standard errors (docs/model.md §3.3, erratum E12).", ""]
 
 
+def _noise_scale_note(summary: pd.DataFrame) -> list[str]:
+    """A warning naming the conditions where the odometry noise scale's posterior lies in its prior's tail
+    (``ptm.noise_scale_posterior``, docs/model.md §3.3): the covariances do not fit those runs, by far more than
+    the prior allows; nothing when there are none."""
+    if "noise_scale_in_prior_tail" not in summary:
+        return []
+    flagged = summary[summary["noise_scale_in_prior_tail"] > 0]
+    if not len(flagged):
+        return []
+    names = ", ".join(f"{row.world} a={row.aliasing:g} noise={row.noise:g} {row.variant}: mean scale "
+                      f"{row.noise_scale:.3g}, {row.noise_scale_in_prior_tail:.0%} of seeds"
+                      for row in flagged.itertuples())
+    return [f"**Odometry noise scale at the prior's edge** in {len(flagged)} of "
+            f"{summary['noise_scale_in_prior_tail'].notna().sum()} conditions with odometry ({names}): the "
+            "posterior asks for covariances the wide prior all but excludes, so the odometry model does not fit "
+            "these runs (a calibration from elsewhere, or a penalty radius that forces merges).", ""]
+
+
 def _fraction_above(group: pd.DataFrame, column: str, limit: float) -> float:
     """Fraction of the rows where ``column`` exceeds ``limit``, among those that have it; NaN if none do."""
     values = group[column].dropna() if column in group else pd.Series(dtype=float)
@@ -378,6 +398,7 @@ def write_summary(experiment: Experiment, table: pd.DataFrame, results_dir: Path
             "odometry_ess", "wall_s"]
         lines += ["## Scores", "", markdown_table(summary[columns]), ""]
         lines += _odometry_ess_note(summary)
+        lines += _noise_scale_note(summary)
         lines += _calibration_section(table, summary)
     lines += _held_out_floors_section(experiment, table)
     lines += _provenance_section(table)
