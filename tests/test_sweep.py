@@ -239,6 +239,7 @@ worlds = ["short_loop"]
 aliasing = [0.0, 1.0]
 seeds = [0]
 calibration_seeds = [10, 11, 12]
+calibration = "same_floor"   # the mechanics end to end, on three tiny runs of the short loop (no larger floors)
 [inference]
 n_samples = 300
 burn_in = 50
