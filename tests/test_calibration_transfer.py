@@ -158,3 +158,36 @@ def test_the_summary_names_the_floors_each_parameter_was_calibrated_on(tmp_path,
     assert f'`sweep.calibration = "{protocol}"`: a simulated world on {says}' in section
     assert f"| office | prior_rate, penalty_radius, threshold | {floors} |" in section
     assert "sigma_topology" not in section.split("## Where the parameters came from")[0]  # a sensor spec, no floors
+
+
+def scaled(dataset, factor):
+    """The same run on a floor ``factor`` times larger: positions and odometry translations scaled."""
+    odometry, poses = dataset.odometry.copy(), dataset.true_poses.copy()
+    odometry[:, :2] *= factor
+    poses[:, :2] *= factor
+    return dataset.replace(odometry=odometry, true_poses=poses, odometry_cov=None)
+
+
+@pytest.mark.parametrize("scale", [0.25, 1.0, 6.0])
+def test_the_penalty_radius_follows_the_scored_floors_own_spacing_not_the_held_out_floors(scale):
+    """A floor calibrated on one of another scale gets the radius of its own spacing: the held-out runs give a
+    dimensionless ratio (closest places / route spacing), the scored run's odometry its scale."""
+    from ptm_bench.evaluation.models import build_models
+    from ptm_bench.evaluation.settings import Variant
+
+    held_out = [square_loop_dataset(seed) for seed in (1, 2)]                   # 2 m squares
+    scored = scaled(square_loop_dataset(0), scale)
+    same_floor = calibration.penalty_radius(None, 0.75, [scaled(run, scale) for run in held_out])[0]
+    variant = Variant("odometry", models=("odometry",))
+    batch = build_models(variant, scored, held_out).used
+    assert batch["penalty_radius"] == pytest.approx(same_floor, rel=0.05), (batch["penalty_radius"], same_floor)
+    assert batch["source_penalty_radius"].endswith("m, this run's route spacing")
+    online = build_models(variant, scored, held_out, online=True).used  # the run's spacing is known only at its end
+    assert online["penalty_radius"] == pytest.approx(calibration.penalty_radius(None, 0.75, held_out)[0])
+
+
+def test_a_run_that_never_moves_between_detections_cannot_scale_the_radius():
+    still = square_loop_dataset(0)
+    still = still.replace(odometry=still.odometry * 0.0)
+    with pytest.raises(ValueError, match="route spacing: the median distance between consecutive detections is 0"):
+        calibration.penalty_radius(None, 0.75, [square_loop_dataset(1)], still)

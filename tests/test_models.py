@@ -26,7 +26,6 @@ from helpers import square_loop_dataset
 SCORED = square_loop_dataset(0)
 HELD_OUT = [square_loop_dataset(10), square_loop_dataset(11)]
 ODOMETRY_PARAMETERS = ("sigma_xy", "sigma_theta", "sigma_topology", "n_importance")
-PENALTY_PARAMETERS = ("penalty_radius", "max_penalty")
 
 
 def batch_cell(monkeypatch, variants=None, **sections):
@@ -53,8 +52,11 @@ def test_the_batch_cell_the_online_mapper_and_the_export_build_the_same_odometry
     for name in ODOMETRY_PARAMETERS:
         assert getattr(batch, name) == getattr(online, name) == getattr(export, name), name
     assert batch.sigma_topology == pytest.approx(0.5 / np.sqrt(2.0))  # the detector's radius / sqrt 2
-    for name in PENALTY_PARAMETERS:
-        assert getattr(batch, name) == getattr(online, name), name
+    assert batch.max_penalty == online.max_penalty
+    # the radius: batch scales the held-out ratio by this run's route spacing, online (which knows the route only
+    # at its end) takes the held-out runs' closest separation; on these runs of one floor the two nearly agree
+    assert batch.penalty_radius == pytest.approx(online.penalty_radius, rel=0.1)
+    assert "this run's route spacing" in used["source_penalty_radius"]
     # the same prior: online, a function of the detections so far, at the scored run's N the batch rate
     online_prior = build_models(Variant("online"), SCORED, HELD_OUT, online=True).prior
     assert online_prior(SCORED.n).rate == pytest.approx(used["prior_rate"], rel=1e-12)

@@ -109,7 +109,7 @@ def test_the_place_separation_is_the_closest_pair_of_different_places_over_runs(
                          true_poses=[[0, 0, 0], [0.5, 0, 0], [2.5, 0, 0], [9, 9, 0], [9.1, 9, 0]])
     assert calibration.place_separation([first]) == pytest.approx(2.8)
     assert calibration.place_separation([first, second]) == pytest.approx(2.0)
-    radius, source = calibration.penalty_radius(None, 0.75, [first, second])
+    radius, source = calibration.penalty_radius(None, 0.75, [first, second])  # online: no scored run's spacing
     assert radius == pytest.approx(1.5)
     assert source == "calibrated: 0.75 x 2 m, the closest detections of different places on 2 held-out runs"
     assert calibration.penalty_radius(2.5, 0.75, []) == (2.5, "config")
@@ -161,8 +161,9 @@ def test_rows_record_each_parameters_source_and_the_measured_aliasing(tmp_path):
     assert inference["noise_scale_prior"].startswith("IG(shape 1.5") and inference["noise_scale_posterior_mean"] > 0.0
     assert inference["noise_scale_in_prior_tail"] in (True, False)
     assert inference["source_penalty_radius"].startswith("calibrated: 0.75 x ")
-    assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.place_separation(
-        calibration.calibration_datasets(cells[0])))
+    scored = datacache.dataset_for("short_loop", 0.0, 1.0, 0, {}, cells[0]["inputs"]["cache_dir"])
+    assert inference["penalty_radius"] == pytest.approx(0.75 * calibration.spacing_ratio(
+        calibration.calibration_datasets(cells[0])) * calibration.route_spacing(scored))
     assert inference["source_sigma_topology"] == "sensor spec: detection radius 0.5 m / sqrt 2"
     assert inference["sigma_topology"] == pytest.approx(0.5 / math.sqrt(2.0))
     assert inference["source_tie_area"] == ("this run's detections: within 0.5 m (the detection radius) of their "

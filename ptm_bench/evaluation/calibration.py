@@ -39,16 +39,22 @@ The calibrated ones:
   share of detections that are first visits is set by the route rules that
   every floor of a generator shares, so it transfers;
 * the penalty radius D (paper eq. 11-12) is ``penalty_radius_factor`` x the
-  smallest distance between the true positions of two detections of different
-  places, the minimum over every held-out run. D says "distinct places are not
-  closer than this"; the penalty fires on any topology that puts two places
-  closer, so D must not exceed a spacing that true topologies have, and the
-  minimum is the largest radius no held-out run contradicts (a low quantile
-  would by construction put true pairs of some runs inside it). It cannot
-  collapse on one unlucky pass: a detection lies within r of its place and the
-  floors keep places more than 2r apart. False detections (negative labels)
-  are left out: they are noise, not landmarks, and two of them may fire at one
-  spot;
+  scored run's :func:`route_spacing` (the median dead-reckoned distance between
+  consecutive detections: odometry, no labels) x the *spacing ratio* of the
+  held-out runs (:func:`spacing_ratio`: the smallest distance between true
+  positions of detections of different places over the run's own route
+  spacing, the minimum over every held-out run). D says "distinct places are
+  not closer than this"; the penalty fires on any topology that puts two places
+  closer, so D must not exceed a spacing that true topologies have. Floors
+  differ in scale (places 1.7 m apart on ``short_loop``, 12 m on
+  ``nested_loops``), so an absolute spacing from other floors does not transfer
+  (1.3 m on ``nested_loops`` from ``short_loop``); the ratio is dimensionless
+  and does (0.67-1.0 on the simulated floors, 0.56-0.70 on the four logs).
+  The minimum is the largest ratio no held-out run contradicts. False
+  detections (negative labels) are left out of the separation: they are noise,
+  not landmarks, and two of them may fire at one spot. Online, where the run's
+  spacing is known only at its end, D is the factor x the closest separation
+  on the held-out runs (``ptm_bench.evaluation.models.ONLINE_DIFFERENCES``);
 * the appearance hyperparameters (mu, kappa, alpha, beta per Fourier
   component, paper eq. 15-19) by empirical Bayes — maximising the evidence of
   the held-out runs' true partitions (``ptm.AppearanceModel.fit``).
@@ -62,14 +68,18 @@ its held-out runs in brackets (:func:`described`, read back by
 
     >>> import numpy as np, ptm
     >>> square = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
-    >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square, meta={"world": "office"})]   # one run
+    >>> steps = [[4.0, 0.0, 1.5708], [4.0, 0.0, 2.3562], [5.657, 0.0, 0.0]]             # its odometry: 4 m, 4 m, 5.7 m
+    >>> held_out = [ptm.Dataset(labels=[0, 1, 2, 0], true_poses=square, odometry=steps, meta={"world": "office"})]
     >>> rate, source = prior_rate(None, n=12, held_out=held_out)
     >>> round(rate, 2)
     29.45
     >>> source
     'calibrated: mean rate for E[places] = 0.75 places/detection on 1 held-out run [office] x N=12 = 9, Gamma shape 2'
-    >>> penalty_radius(None, 0.75, held_out)
+    >>> penalty_radius(None, 0.75, held_out)                  # online: the held-out runs' closest separation
     (3.0, 'calibrated: 0.75 x 4 m, the closest detections of different places on 1 held-out run [office]')
+    >>> scored = ptm.Dataset(odometry=[[6.0, 0.0, 0.0], [6.0, 0.0, 1.57], [8.0, 0.0, 0.0]])
+    >>> penalty_radius(None, 0.75, held_out, scored)        # batch: ratio 4 / 4 m on the held-out run, x 6 m
+    (4.5, "calibrated: 0.75 x 1 (separation / route spacing on 1 held-out run [office]) x 6 m, this run's route spacing")
     >>> floors_in(source), [(name, seed) for name, _, seed in held_out_floors("office", "other_floors", [7, 8, 9])]
     (['office'], [('nested_loops', 7), ('short_loop', 8), ('grid3x3', 9)])
     >>> topology_sigma(None, {"detection_radius": 1.5})
@@ -96,6 +106,7 @@ from ptm_bench.world.floorplan import list_worlds, load_world
 __all__ = ["APPEARANCE_HYPERPARAMETERS", "CALIBRATION_GRIDS", "HELD_OUT_FLOOR", "appearance_fitter",
            "calibration_datasets", "described", "fitted_appearance", "floors_in", "held_out_floors",
            "labelled_runs", "other_floors", "penalty_radius", "place_separation", "places_per_detection", "prior_rate",
+           "route_spacing", "spacing_ratio",
            "tie_area_margin", "topology_sigma"]
 
 CONFIG = "config"
@@ -314,9 +325,11 @@ def prior_rate(configured: float | None, n: int, held_out) -> tuple[float, str]:
                   f"x N={n} = {places:.3g}, Gamma shape {PRIOR_RATE_SHAPE:g}")
 
 
-def penalty_radius(configured: float | None, factor: float, held_out) -> tuple[float, str]:
+def penalty_radius(configured: float | None, factor: float, held_out,
+                   scored: ptm.Dataset | None = None) -> tuple[float, str]:
     """The ``configured`` penalty radius D, or ``factor`` (``odometry.penalty_radius_factor``) x
-    :func:`place_separation` of the held-out runs.
+    :func:`spacing_ratio` of the held-out runs x :func:`route_spacing` of the ``scored`` run; without a scored run
+    (online: its spacing is known only at its end), ``factor`` x :func:`place_separation` of the held-out runs.
 
     ``held_out`` is the list of held-out runs, or a function returning it (called only when needed).
     """
@@ -324,9 +337,34 @@ def penalty_radius(configured: float | None, factor: float, held_out) -> tuple[f
         return float(configured), CONFIG
     factor = float(factor)
     held_out = _materialised(held_out)
-    separation = place_separation(held_out)
-    return factor * separation, (f"calibrated: {factor:g} x {separation:.3g} m, the closest detections of "
-                                 f"different places on {described(held_out)}")
+    if scored is None:
+        separation = place_separation(held_out)
+        return factor * separation, (f"calibrated: {factor:g} x {separation:.3g} m, the closest detections of "
+                                     f"different places on {described(held_out)}")
+    ratio, spacing = spacing_ratio(held_out), route_spacing(scored)
+    return factor * ratio * spacing, (f"calibrated: {factor:g} x {ratio:.3g} (separation / route spacing on "
+                                      f"{described(held_out)}) x {spacing:.3g} m, this run's route spacing")
+
+
+def route_spacing(dataset: ptm.Dataset) -> float:
+    """The median dead-reckoned distance [m] between consecutive detections: the scale of a run's place spacing,
+    from its odometry alone (no labels). A ``ValueError`` for a run without odometry or without movement."""
+    if dataset.odometry is None or len(dataset.odometry) == 0:
+        raise ValueError("the penalty radius is scaled by the run's route spacing: the run has no odometry "
+                         "between detections; set odometry.penalty_radius in the config")
+    spacing = float(np.median(np.linalg.norm(np.asarray(dataset.odometry)[:, :2], axis=1)))
+    if not spacing > 0.0:
+        raise ValueError("the penalty radius is scaled by the run's route spacing: the median distance between "
+                         "consecutive detections is 0; set odometry.penalty_radius in the config")
+    return spacing
+
+
+def spacing_ratio(held_out: Sequence[ptm.Dataset]) -> float:
+    """The smallest ratio of :func:`place_separation` to :func:`route_spacing` over labelled runs: how close
+    distinct places come, in units of the run's own spacing, a number that carries over between floors of
+    different scale."""
+    held_out = labelled_runs(held_out, "the penalty radius")
+    return min(place_separation([dataset]) / route_spacing(dataset) for dataset in held_out)
 
 
 def topology_sigma(configured: float | None, meta: dict) -> tuple[float, str]:

@@ -20,7 +20,9 @@ entries named by :data:`ONLINE_DIFFERENCES`:
   (``appearance.prior_mean = "run"``) is known only at its end;
 * the landmarks' area of the normalised ties is that of the dead-reckoned route so far
   (:class:`ptm.DeadReckonedTieNormaliser`, bound anew to each prefix of the run), not of the whole run;
-* the prior is a function of the number of detections so far (the held-out places per detection x n).
+* the prior is a function of the number of detections so far (the held-out places per detection x n);
+* the penalty radius is the factor x the closest separation of places on the held-out runs, as the run's own
+  route spacing, by which a batch build scales it, is known only at its end.
 
 Without held-out runs (``held_out=None``: a map, whose mode needs neither the prior nor the landmark-density
 penalty, docs/model.md §3.3) a parameter that would be calibrated is left out and the used entries say so.
@@ -51,7 +53,7 @@ __all__ = ["ONLINE_DIFFERENCES", "Models", "build_models"]
 
 #: The used entries in which an online build may differ from a batch build of the same settings and dataset.
 ONLINE_DIFFERENCES = ("source_appearance", "appearance_hyperparameters", "tie_area", "source_tie_area", "prior_rate",
-                      "source_prior_rate")
+                      "source_prior_rate", "penalty_radius", "source_penalty_radius")
 
 
 @dataclass(frozen=True)
@@ -102,8 +104,8 @@ def _odometry(settings: OdometrySettings, dataset: ptm.Dataset, runs, online: bo
             "no held-out runs to calibrate the penalty radius on: the penalty is off (the map, the mode of the pose "
             "graph, does not depend on it)")
     else:
-        radius, used["source_penalty_radius"] = calibration.penalty_radius(settings.penalty_radius,
-                                                                           settings.penalty_radius_factor, runs)
+        radius, used["source_penalty_radius"] = calibration.penalty_radius(
+            settings.penalty_radius, settings.penalty_radius_factor, runs, None if online else dataset)
         used["penalty_radius"], used["max_penalty"] = radius, settings.max_penalty
         penalty = {"penalty_radius": radius, "max_penalty": settings.max_penalty}
     scale_prior = ptm.odometry.NoiseScalePrior.wide()  # the covariances' scale, integrated out (docs/model.md §3.3)

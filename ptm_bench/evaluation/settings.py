@@ -174,8 +174,8 @@ class OdometrySettings(_Section):
     ``sigma_xy`` [m] and ``sigma_theta`` [rad]: the per-step odometry spread where a dataset has no
     ``odometry_cov``. ``sigma_topology`` [m]: the tie between detections of one place; None is the detector's
     radius r / sqrt 2 (a sensor specification: two positions each uniform within r of their place differ by
-    r / sqrt 2 per axis). ``penalty_radius`` [m]: None is ``penalty_radius_factor`` x the closest detections of
-    different places on the held-out runs. ``max_penalty`` [nats] and ``n_importance`` (importance samples per
+    r / sqrt 2 per axis). ``penalty_radius`` [m]: None is ``penalty_radius_factor`` x the held-out runs' closest
+    places in units of their route spacing x this run's route spacing (``calibration.penalty_radius``). ``max_penalty`` [nats] and ``n_importance`` (importance samples per
     evaluation of the odometry integral). The ties are always normalised (``ptm.TieNormaliser``, landmarks within
     r of the dead-reckoned route).
     """
