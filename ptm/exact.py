@@ -191,27 +191,29 @@ def _add_global_terms(posterior, partitions: np.ndarray, log_probs: np.ndarray, 
     Returns the indices of the evaluated partitions (in enumeration order) and the bound on the skipped
     mass relative to the evaluated mass (0 when nothing was skipped).
     """
-    bound = posterior.global_log_prob_upper_bound() if skip else None
-    order = np.argsort(-log_probs, kind="stable")
-    # rest[k]: log of the cheap mass of the partitions from the k-th best on
-    rest = np.append(np.logaddexp.accumulate(log_probs[order][::-1])[::-1], -np.inf)
+    bounds = posterior.global_log_prob_upper_bound() if skip else None
+    # each partition's bound depends on its number of places; the order and the rest follow the bounded mass
+    bound = np.zeros(len(log_probs)) if bounds is None else bounds[partitions.max(axis=1).astype(np.intp) + 1]
+    order = np.argsort(-(log_probs + bound), kind="stable")
+    # rest[k]: log of the bounded mass (cheap score + global bound) of the partitions from the k-th on
+    rest = np.append(np.logaddexp.accumulate((log_probs + bound)[order][::-1])[::-1], -np.inf)
     log_evaluated = -np.inf
     count = 0
     for index in order:
-        if bound is not None and rest[count] + bound < log_evaluated - SKIP_NATS:
+        if bounds is not None and rest[count] < log_evaluated - SKIP_NATS:
             break
         value = posterior.global_log_prob(Partition.from_labels(partitions[index]))
-        if bound is not None and value > bound + BOUND_SLACK_NATS:
-            bound = None  # not a bound after all: evaluate everything
+        if bounds is not None and value > bound[index] + BOUND_SLACK_NATS:
+            bounds = None  # not a bound after all: evaluate everything
         log_probs[index] += value
         log_evaluated = np.logaddexp(log_evaluated, log_probs[index])
         count += 1
         if budget is not None and (count == 1 or count >= budget):
             # the evaluations the skip rule may still need: up to the first k whose rest falls below its threshold
-            needed = order.size if bound is None else int(np.argmax(rest + bound < log_evaluated - SKIP_NATS))
+            needed = order.size if bounds is None else int(np.argmax(rest < log_evaluated - SKIP_NATS))
             if needed > budget:
                 raise ExactBudgetExceeded(f"exact enumeration would evaluate the global terms on up to {needed:,} of "
                                           f"{order.size:,} partitions; the budget is {budget:,} "
                                           "(max_global_evaluations)")
-    skipped_mass = 0.0 if count == order.size else float(np.exp(rest[count] + bound - log_evaluated))
+    skipped_mass = 0.0 if count == order.size else float(np.exp(rest[count] - log_evaluated))
     return np.sort(order[:count]), skipped_mass

@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ._cache import BoundedCache
 from .partitions import Partition
 
@@ -106,12 +108,13 @@ class Posterior:
             total += _checked(term.log_likelihood(partition), term)
         return total
 
-    def global_log_prob_upper_bound(self) -> float | None:
-        """An upper bound on :meth:`global_log_prob` over all partitions, or None if a global term offers none
-        (``log_likelihood_upper_bound()``)."""
+    def global_log_prob_upper_bound(self) -> np.ndarray | None:
+        """Upper bounds on :meth:`global_log_prob` over the partitions of m places, indexed by m = 0 .. N, or None
+        if a global term offers none (``log_likelihood_upper_bound(num_places)``)."""
         if not all(hasattr(term, "log_likelihood_upper_bound") for term in self.global_terms):
             return None
-        return sum(_checked(term.log_likelihood_upper_bound(), term) for term in self.global_terms)
+        return np.array([sum(_checked(term.log_likelihood_upper_bound(m), term) for term in self.global_terms)
+                         for m in range(self.n + 1)])
 
     @property
     def has_global_terms(self) -> bool:

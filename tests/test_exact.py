@@ -146,7 +146,7 @@ class _Overshoot:
     def log_likelihood(self, partition) -> float:
         return self.amount if partition.labels == self.labels else 0.0
 
-    def log_likelihood_upper_bound(self) -> float:
+    def log_likelihood_upper_bound(self, num_places=None) -> float:
         return 0.0
 
 

@@ -169,8 +169,15 @@ def test_every_value_respects_the_bound_exact_enumeration_skips_by(shuttle):
     term = marginal.global_terms[0]
     bound = term.log_likelihood_upper_bound()
     assert bound > plug_in.global_terms[0].log_likelihood_upper_bound()
-    values = [term.log_likelihood(labels) for labels in ptm.exact_posterior(plug_in).partitions]
+    partitions = ptm.exact_posterior(plug_in).partitions
+    values = [term.log_likelihood(labels) for labels in partitions]
     assert max(values) <= bound
+    # the bound of the partitions of M places: at most the one over all, and every value of M places below it
+    places = partitions.max(axis=1) + 1
+    by_places = [term.log_likelihood_upper_bound(m) for m in range(1, marginal.n + 1)]
+    assert max(by_places) == pytest.approx(bound) and min(by_places) < bound - 1.0
+    assert all(value <= by_places[m - 1] for value, m in zip(values, places))
+
 
 
 def test_the_scale_is_learned_from_the_loop_closures(shuttle):

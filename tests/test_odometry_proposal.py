@@ -221,3 +221,26 @@ def test_diagnostics_summarise_the_monte_carlo_error():
     assert diagnostics["mc_standard_error_mean"] == pytest.approx(np.mean(errors))
     assert diagnostics["mc_standard_error_max"] == pytest.approx(max(errors))
     assert diagnostics["penalty_proposal_rate"] == pytest.approx(2 / 3)
+
+
+def test_wide_draws_are_read_back_as_the_offsets_they_were_drawn_from():
+    """A proposal as wide as a large noise scale makes it turns some steps by more than pi beyond P*: reading the
+    state back must give the drawn offsets, not their wrapped twins (which have another density)."""
+    from ptm.odometry import compose_linearised_increments, linearised_increment_offsets
+
+    centre = np.array([2.0, 0.0, 1.5, 2.0, 2.0, 3.1, 0.0, 2.0, 4.5])
+    delta = np.random.default_rng(0).normal(0.0, 3.0, (9, 200))
+    assert np.abs(delta[2::3]).max() > 2 * math.pi
+    np.testing.assert_allclose(linearised_increment_offsets(centre, compose_linearised_increments(centre, delta)),
+                               delta, atol=1e-9)
+
+
+def test_a_scale_integrated_estimate_stays_below_its_bound_on_a_partition_that_needs_a_huge_scale():
+    """Merging every corner of the loop into one place needs a noise scale in the hundreds; the importance
+    correction at that scale (wide draws, the penalty's mixture) must not lift the value above its bound."""
+    dataset = issue_loop()
+    model = loop_model(100.0, seed=0, noise_scale_prior=ptm.odometry.NoiseScalePrior.wide(), normalised_ties=True)
+    term = model.bind(dataset)
+    for labels in ([0, 0, 0, 0, 0, 0, 0], [0, 1, 0, 1, 0, 1, 0], [0, 0, 1, 1, 0, 0, 1]):
+        value = term.evaluate(labels).log_likelihood
+        assert value <= term.log_likelihood_upper_bound(max(labels) + 1), labels

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..pose_graph import poses_from_vector
-from ..se2 import relative_pose, wrap_angle
+from ..se2 import relative_pose
 
 __all__ = ["compose_linearised_increments", "linearised_increment_offsets"]
 
@@ -71,7 +71,9 @@ def linearised_increment_offsets(centre, states) -> np.ndarray:
     # u(states) - u*: (N - 1, 3, S), the step in the frame of the pose before and the turn
     change = np.moveaxis(relative_pose(sampled_poses[:, :-1], sampled_poses[:, 1:])
                          - relative_pose(centre_poses[:-1, :, 0], centre_poses[1:, :, 0]), 0, -1)
-    change[:, 2] = wrap_angle(change[:, 2])
+    # the turn's offset from the headings as they are, not wrapped: a draw far from P* (a wide proposal) may
+    # turn by more than pi more than P* does, and wrapping would map it to another offset and another density
+    change[:, 2] = (np.diff(sampled_poses[:, :, 2], axis=1) - np.diff(centre_poses[:, 2, 0])).T
     turns = np.cumsum(change[:, 2], axis=0)  # the heading offset of poses 1..N-1
     turn_before = np.concatenate([np.zeros((1, samples)), turns[:-1]])
     before = centre_poses[:-1, :, 0]

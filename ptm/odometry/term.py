@@ -215,20 +215,23 @@ class OdometryTerm:
             self._remember_mode(labels, fit)
         return mode
 
-    def log_likelihood_upper_bound(self) -> float:
-        """A bound no partition's log P(O | T) exceeds: the all-singletons value without penalty.
+    def log_likelihood_upper_bound(self, num_places: int | None = None) -> float:
+        """A bound no partition's log P(O | T) exceeds (of ``num_places`` places, or of any number): the
+        all-singletons value without penalty.
 
         The ties and the penalty are >= 0, so exp(-E_T - Pen_T) <= exp(-E_all-distinct) at every P, and
         the all-distinct energy is a chain of independent Gaussian steps (docs/model.md §3.3):
         sum_k 1/2 log det(2 pi Sigma_k). :func:`ptm.exact_posterior` uses it to skip partitions whose
         cheap score leaves them no chance of mattering. With a ``noise_scale_prior`` and normalised ties,
-        s^-(N-M) may exceed 1, so the bound grows by the largest log int IG(s) s^-k ds over k < N.
+        s^-(N-M) may exceed 1, so the bound grows by log int IG(s) s^-k ds at k = N - M (the largest over
+        k < N where the number of places is not given).
         """
         _, log_det_whitening = np.linalg.slogdet(self.graph.sqrt_information)  # log |det U_k| = -1/2 log det Sigma_k
         bound = float(1.5 * (self.n - 1) * math.log(2.0 * math.pi) - log_det_whitening.sum())
         if self.noise_scale_prior is not None and self.model.normalised_ties:
             # det H >= det of the rows' information and E* >= 0, but s^-(N-M) may exceed 1 where s < 1
-            bound += self.noise_scale_prior.largest_log_marginal_gain(self.n - 1)
+            ties = self.n - 1 if num_places is None else self.n - int(num_places)
+            bound += self.noise_scale_prior.largest_log_marginal_gain(ties)
         return bound
 
     def noise_scale_conditional(self, partition) -> NoiseScalePrior:
