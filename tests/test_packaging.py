@@ -18,8 +18,6 @@ ROOT = Path(__file__).resolve().parent.parent
 # What a wheel is built from: the build runs in a copy of these, never in the checkout, whose build/ folder
 # (left by an earlier build, or an editable install) made setuptools fail with "File exists" in CI.
 SOURCES = ("pyproject.toml", "README.md", "ptm", "ptm_bench", "worlds")
-# One pytest-xdist worker runs these tests, so that the wheel is built once.
-pytestmark = pytest.mark.xdist_group("wheel_build")
 
 
 def _pip(python, *arguments: str) -> subprocess.CompletedProcess:
